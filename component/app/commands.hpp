@@ -1,0 +1,45 @@
+// The subcommands of `virtual-encoder`. Each returns the process exit code:
+// 0 success, 1 the job failed (e.g. check found problems), 2 bad usage or input.
+#pragma once
+
+#include <optional>
+#include <string>
+
+namespace ve::app {
+
+struct RunOptions {
+  std::string config;            ///< machine file; "" = the embedded simulator machine
+  std::optional<int> domain;     ///< overrides dds.domain
+  double duration_s = 0.0;       ///< stop after this long; 0 = until SIGINT/SIGTERM
+  double status_period_s = 1.0;  ///< period of the status lines on the log
+  /// Before starting the sources, wait up to this long for a first subscriber to
+  /// match, so that it sees the motion from its first sample [s]. 0: start at once.
+  double wait_for_subscriber_s = 0.0;
+};
+int run_command(const RunOptions& options);
+
+struct CheckOptions {
+  std::string config;
+};
+int check_command(const CheckOptions& options);
+
+struct CalibrateOptions {
+  std::string config;
+  std::string axis;            ///< "" = the first axis
+  std::string out;             ///< "" = the axis' calibration file, else calibration/<motor>.cal.yaml
+  double sweep_speed_mps = 0.02;
+  double sweep_acceleration_mps2 = 0.5;
+};
+int calibrate_command(const CalibrateOptions& options);
+
+struct MonitorOptions {
+  std::string config;              ///< to take the domain from; "" = embedded default
+  std::optional<int> domain;
+  double duration_s = 0.0;         ///< 0 = until SIGINT/SIGTERM
+  bool csv = false;                ///< stream every sample as CSV instead of the live table
+  double deadline_ms = 0.0;        ///< requested deadline; 0 = twice the configured offered deadline
+  double refresh_s = 0.25;
+};
+int monitor_command(const MonitorOptions& options);
+
+}  // namespace ve::app

@@ -1,0 +1,70 @@
+// virtual-encoder: one executable, one subcommand per job.
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+
+#include "commands.hpp"
+#include "signals.hpp"
+
+int main(int argc, char** argv) {
+  // Before any thread exists (Fast DDS starts its own), so all inherit the mask.
+  ve::app::block_termination_signals();
+
+  CLI::App app{"Virtual Encoder: Hall sensors + accelerometer -> encoder-equivalent position and velocity over DDS"};
+  app.set_version_flag("--version", std::string(VE_VERSION));
+  app.require_subcommand(1);
+  std::string log_level = "info";
+  app.add_option("--log-level", log_level, "trace|debug|info|warn|error")->capture_default_str();
+
+  ve::app::RunOptions run;
+  int run_domain = -1;
+  auto* run_cmd = app.add_subcommand("run", "Estimate and publish every axis of a machine over DDS");
+  run_cmd->add_option("--config,-c", run.config, "Machine file (default: the built-in simulator machine)");
+  run_cmd->add_option("--domain,-d", run_domain, "DDS domain, overrides dds.domain")->check(CLI::Range(0, 232));
+  run_cmd->add_option("--duration", run.duration_s, "Stop after this many seconds (default: run until signalled)")
+      ->check(CLI::NonNegativeNumber);
+  run_cmd->add_option("--wait-for-subscriber", run.wait_for_subscriber_s,
+                      "Wait up to this many seconds for a first subscriber before starting the sensors")
+      ->check(CLI::NonNegativeNumber);
+  run_cmd->add_option("--status-period", run.status_period_s, "Seconds between status lines")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+
+  ve::app::CheckOptions check;
+  auto* check_cmd = app.add_subcommand("check", "Validate a machine file, its motor files and calibrations");
+  check_cmd->add_option("--config,-c", check.config, "Machine file (default: the built-in simulator machine)");
+
+  ve::app::CalibrateOptions cal;
+  auto* cal_cmd = app.add_subcommand("calibrate", "Build an axis' Hall table from a reference sweep of the simulator");
+  cal_cmd->add_option("--config,-c", cal.config, "Machine file (default: the built-in simulator machine)");
+  cal_cmd->add_option("--axis,-a", cal.axis, "Axis name (default: the first)");
+  cal_cmd->add_option("--out,-o", cal.out, "Calibration file to write (default: the axis' calibration file)");
+  cal_cmd->add_option("--speed", cal.sweep_speed_mps, "Sweep speed [m/s]")
+      ->check(CLI::Range(0.001, 0.5))
+      ->capture_default_str();
+
+  ve::app::MonitorOptions mon;
+  int mon_domain = -1;
+  auto* mon_cmd = app.add_subcommand("monitor", "Show every axis on the DDS domain live");
+  mon_cmd->add_option("--config,-c", mon.config, "Machine file to take the domain and profiles from");
+  mon_cmd->add_option("--domain,-d", mon_domain, "DDS domain, overrides the config")->check(CLI::Range(0, 232));
+  mon_cmd->add_option("--duration", mon.duration_s, "Stop after this many seconds")->check(CLI::NonNegativeNumber);
+  mon_cmd->add_flag("--csv", mon.csv, "Stream every sample as CSV on stdout instead of the live table");
+  mon_cmd->add_option("--deadline-ms", mon.deadline_ms, "Requested deadline [ms] (default: twice the offered one)")
+      ->check(CLI::NonNegativeNumber);
+
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(spdlog::level::from_str(log_level));
+  spdlog::set_pattern("%H:%M:%S.%e %^%-5l%$ %v");
+
+  if (*run_cmd) {
+    if (run_domain >= 0) run.domain = run_domain;
+    return ve::app::run_command(run);
+  }
+  if (*check_cmd) return ve::app::check_command(check);
+  if (*cal_cmd) return ve::app::calibrate_command(cal);
+  if (*mon_cmd) {
+    if (mon_domain >= 0) mon.domain = mon_domain;
+    return ve::app::monitor_command(mon);
+  }
+  return 2;
+}

@@ -1,0 +1,317 @@
+#include "config/calibration_file.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+
+namespace ve::config {
+
+namespace {
+
+using schema::Map;
+using schema::Value;
+
+// Every refusal starts with one of these, so callers and users can tell a
+// damaged file from one that belongs elsewhere.
+constexpr const char* kCorrupt = "corrupt: ";
+constexpr const char* kOtherMotor = "other motor: ";
+constexpr const char* kLayout = "incompatible sensor layout: ";
+constexpr const char* kVersion = "unsupported version: ";
+constexpr const char* kNotCalibration = "not a calibration file: ";
+
+bool starts_with(const std::string& s, const char* prefix) { return s.rfind(prefix, 0) == 0; }
+
+/// The checksum rounds volts to this unit; the file stores exactly that many
+/// decimals so a text round trip gives back the same checksum.
+constexpr double kVoltUnit = 1e-6;
+
+void read_table(Map t, core::HallTable& table, int hall_count) {
+  t.require("start_m", table.start_m);
+  t.require("step_m", table.step_m, schema::greater_than(0.0));
+  t.require("points", table.points, schema::in_range(4, 100000000));
+  const Value sensors = t.required("sensors");
+  if (!sensors.present()) return;
+  if (!sensors.is_sequence()) {
+    sensors.error(std::string(kCorrupt) + "expected one sequence of values per sensor");
+    return;
+  }
+  const std::size_t rows = sensors.size();
+  if (hall_count > 0 && rows != static_cast<std::size_t>(hall_count))
+    sensors.error(std::string(kCorrupt) + "table has " + std::to_string(rows) + " sensor rows but hall_count is " +
+                  std::to_string(hall_count));
+  // Rows are checked before the table is allocated: a damaged `points` must
+  // not make us allocate gigabytes.
+  std::vector<std::vector<double>> values(rows);
+  bool rows_ok = true;
+  for (std::size_t s = 0; s < rows; ++s) {
+    const Value r = sensors.at(s);
+    if (!r.as(values[s])) {
+      rows_ok = false;
+    } else if (values[s].size() != static_cast<std::size_t>(table.points)) {
+      r.error(std::string(kCorrupt) + "sensor row has " + std::to_string(values[s].size()) +
+              " values but points is " + std::to_string(table.points));
+      rows_ok = false;
+    }
+  }
+  if (!rows_ok) return;
+  table.sensors = static_cast<int>(rows);
+  table.v.clear();
+  table.v.reserve(rows * static_cast<std::size_t>(table.points));
+  for (const auto& row : values) table.v.insert(table.v.end(), row.begin(), row.end());
+}
+
+void read_calibration(Map root, const core::MotorConfig& expected, core::Calibration& cal, std::size_t first_error,
+                      const std::vector<ConfigError>& errors) {
+  core::CalibrationInfo& info = cal.info;
+  std::string format;
+  const Value f = root.required("format");
+  if (f.as(format) && format != kCalibrationFormat)
+    f.error(std::string(kNotCalibration) + "format is '" + format + "', expected '" + kCalibrationFormat + "'");
+  if (errors.size() != first_error) {
+    root.discard();
+    return;
+  }
+  int version = 0;
+  const Value ver = root.required("version");
+  if (ver.as(version) && version != kCalibrationVersion)
+    ver.error(std::string(kVersion) + "version " + std::to_string(version) + "; this program reads version " +
+              std::to_string(kCalibrationVersion));
+  if (errors.size() != first_error) {
+    root.discard();
+    return;
+  }
+
+  const Value motor = root.required("motor");
+  if (motor.as(info.motor) && info.motor != expected.name)
+    motor.error(std::string(kOtherMotor) + "made for motor '" + info.motor + "', this axis has motor '" +
+                expected.name + "'");
+  const Value halls = root.required("hall_count");
+  if (halls.as(info.hall_count) && info.hall_count != expected.hall.count)
+    halls.error(std::string(kLayout) + "made for " + std::to_string(info.hall_count) +
+                " Hall sensors, the motor has " + std::to_string(expected.hall.count));
+  const Value pitch = root.required("magnet_pitch_m");
+  if (pitch.as(info.magnet_pitch_m) &&
+      std::abs(info.magnet_pitch_m - expected.magnet_pitch_m) > 1e-9 * std::abs(expected.magnet_pitch_m))
+    pitch.error(std::string(kOtherMotor) + "made for a magnet pitch of " + schema::format_number(info.magnet_pitch_m) +
+                " m, the motor has " + schema::format_number(expected.magnet_pitch_m) + " m");
+  root.get("method", info.method);
+  root.get("created_utc", info.created_utc);
+  const Value id = root.required("id");
+  id.as(info.id);
+
+  const std::size_t before_table = errors.size();
+  const Value table = root.required("table");
+  if (table.present()) read_table(table.as_map(), cal.table, info.hall_count);
+  if (errors.size() == before_table && id.present() && cal.table.valid()) {
+    const std::string sum = core::table_checksum(cal.table);
+    if (sum != info.id)
+      id.error(std::string(kCorrupt) + "the table's checksum is " + sum + " but id is " + info.id +
+               " (the file was damaged or edited)");
+  }
+}
+
+// ---- writing -------------------------------------------------------------------
+
+void append_microvolts(std::string& out, double v) {
+  // Same rounding as core::table_checksum, so the stored decimal reproduces it.
+  const long long q = std::llround(v / kVoltUnit);
+  const unsigned long long a = q < 0 ? static_cast<unsigned long long>(-q) : static_cast<unsigned long long>(q);
+  if (q < 0) out += '-';
+  char buf[32];
+  auto r = std::to_chars(buf, buf + sizeof buf, a / 1000000ull);
+  out.append(buf, r.ptr);
+  out += '.';
+  const unsigned long long frac = a % 1000000ull;
+  char digits[6];
+  unsigned long long x = frac;
+  for (int i = 5; i >= 0; --i) {
+    digits[i] = static_cast<char>('0' + x % 10);
+    x /= 10;
+  }
+  out.append(digits, 6);
+}
+
+/// Plain when YAML would read it back as the same string, else double-quoted.
+std::string yaml_string(const std::string& s) {
+  bool plain = !s.empty() && std::isalpha(static_cast<unsigned char>(s.front())) && s.back() != ':';
+  for (const char c : s)
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.' || c == ':' || c == '+'))
+      plain = false;
+  for (const char* word : {"true", "false", "True", "False", "TRUE", "FALSE", "null", "Null", "NULL", "y", "n",
+                           "yes", "no", "on", "off", "Y", "N", "Yes", "No", "On", "Off"})
+    if (s == word) plain = false;
+  if (plain) return s;
+  std::string q = "\"";
+  for (const char c : s) {
+    if (c == '"' || c == '\\') {
+      q += '\\';
+      q += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\x%02x", static_cast<unsigned char>(c));
+      q += buf;
+    } else {
+      q += c;
+    }
+  }
+  return q + "\"";
+}
+
+std::string now_utc() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
+}
+
+std::string check_writable(const core::Calibration& cal) {
+  const core::HallTable& t = cal.table;
+  if (!t.valid()) return "the table is not valid (needs >= 4 points, step_m > 0 and sensors * points values)";
+  if (!std::isfinite(t.start_m) || !std::isfinite(t.step_m)) return "the table grid is not finite";
+  for (const double x : t.v)
+    if (!std::isfinite(x)) return "the table holds a value that is not finite";
+  if (cal.info.motor.empty()) return "info.motor is empty";
+  if (t.sensors != cal.info.hall_count)
+    return "the table has " + std::to_string(t.sensors) + " sensors but info.hall_count is " +
+           std::to_string(cal.info.hall_count);
+  if (!(cal.info.magnet_pitch_m > 0.0)) return "info.magnet_pitch_m must be > 0";
+  if (!cal.info.id.empty() && cal.info.id != core::table_checksum(t))
+    return "info.id " + cal.info.id + " is not the checksum of the table (" + core::table_checksum(t) + ")";
+  return {};
+}
+
+bool write_all(int fd, const std::string& text) {
+  const char* p = text.data();
+  std::size_t left = text.size();
+  while (left > 0) {
+    const ssize_t n = ::write(fd, p, left);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return false;
+    }
+    p += n;
+    left -= static_cast<std::size_t>(n);
+  }
+  return true;
+}
+
+}  // namespace
+
+CalibrationLoad load_calibration_file(const std::string& path, const core::MotorConfig& expected) {
+  CalibrationLoad r;
+  std::string text, why;
+  if (!schema::read_text_file(path, text, why)) {
+    r.errors.push_back({path, 0, 0, "", "cannot read calibration file: " + why});
+    return r;
+  }
+  {
+    schema::Document doc(path, r.errors);
+    if (doc.parse(text)) read_calibration(doc.root(), expected, r.calibration, 0, r.errors);
+  }
+  // Generic problems (bad syntax, missing or mistyped keys) in a file this
+  // program wrote mean it was damaged.
+  for (auto& e : r.errors)
+    if (!starts_with(e.message, kCorrupt) && !starts_with(e.message, kOtherMotor) &&
+        !starts_with(e.message, kLayout) && !starts_with(e.message, kVersion) &&
+        !starts_with(e.message, kNotCalibration))
+      e.message = kCorrupt + e.message;
+  schema::sort_errors(r.errors);
+  return r;
+}
+
+std::string format_calibration(const core::Calibration& cal) {
+  const core::HallTable& t = cal.table;
+  std::string out;
+  out.reserve(512 + t.v.size() * 11);
+  out += "# Hall sensor calibration for the virtual encoder. Do not edit: the table's\n";
+  out += "# checksum must equal `id`, or the file is refused.\n";
+  out += "format: ";
+  out += kCalibrationFormat;
+  out += "\nversion: " + std::to_string(kCalibrationVersion) + "\n";
+  out += "motor: " + yaml_string(cal.info.motor) + "\n";
+  out += "hall_count: " + std::to_string(cal.info.hall_count) + "\n";
+  out += "magnet_pitch_m: " + schema::format_number(cal.info.magnet_pitch_m) + "\n";
+  out += "method: " + yaml_string(cal.info.method.empty() ? std::string("unknown") : cal.info.method) + "\n";
+  out += "created_utc: " + yaml_string(cal.info.created_utc.empty() ? now_utc() : cal.info.created_utc) + "\n";
+  // Quoted: a hex string of digits only would otherwise read as a number in other YAML tools.
+  out += "id: \"" + core::table_checksum(t) + "\"   # checksum of the table\n";
+  out += "table:\n";
+  // Shortest round-trip form: the grid comes back bit-identical.
+  out += "  start_m: " + schema::format_number(t.start_m) + "\n";
+  out += "  step_m: " + schema::format_number(t.step_m) + "\n";
+  out += "  points: " + std::to_string(t.points) + "\n";
+  out += "  sensors:   # volts, one sequence per sensor, grid point k at start_m + k * step_m\n";
+  constexpr int kPerLine = 10;
+  for (int s = 0; s < t.sensors; ++s) {
+    out += "    - [";
+    for (int k = 0; k < t.points; ++k) {
+      if (k > 0) out += (k % kPerLine == 0) ? ",\n       " : ", ";
+      append_microvolts(out, t.v[static_cast<std::size_t>(s) * static_cast<std::size_t>(t.points) +
+                                 static_cast<std::size_t>(k)]);
+    }
+    out += "]\n";
+  }
+  return out;
+}
+
+bool write_calibration_file_atomic(const std::string& path, const core::Calibration& cal, std::string& error) {
+  const std::string invalid = check_writable(cal);
+  if (!invalid.empty()) {
+    error = "refusing to write '" + path + "': " + invalid;
+    return false;
+  }
+  const std::string text = format_calibration(cal);
+
+  // Same directory as the target: rename() is atomic only within one file system.
+  std::string tmp = path + ".tmp.XXXXXX";
+  const int fd = ::mkostemp(tmp.data(), O_CLOEXEC);
+  if (fd < 0) {
+    error = "cannot create a temporary file next to '" + path + "': " + std::strerror(errno);
+    return false;
+  }
+  auto fail = [&](const std::string& what, int fd_to_close) {
+    const int e = errno;
+    if (fd_to_close >= 0) ::close(fd_to_close);
+    ::unlink(tmp.c_str());
+    error = what + ": " + std::strerror(e);
+    return false;
+  };
+  // mkostemp creates 0600; keep the old file's permissions (or the usual 0644) so readers still can.
+  struct stat st {};
+  const mode_t mode = (::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode)) ? (st.st_mode & 07777) : 0644;
+  if (::fchmod(fd, mode) != 0) return fail("cannot set permissions of '" + tmp + "'", fd);
+  if (!write_all(fd, text)) return fail("cannot write '" + tmp + "'", fd);
+  if (::fsync(fd) != 0) return fail("cannot flush '" + tmp + "' to disk", fd);
+  if (::close(fd) != 0) return fail("cannot close '" + tmp + "'", -1);
+  if (::rename(tmp.c_str(), path.c_str()) != 0) return fail("cannot replace '" + path + "'", -1);
+
+  // The rename is durable only once the directory entry is on disk.
+  std::string dir = std::filesystem::path(path).parent_path().string();
+  if (dir.empty()) dir = ".";
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd < 0 || (::fsync(dfd) != 0 && errno != EINVAL)) {
+    const int e = errno;
+    if (dfd >= 0) ::close(dfd);
+    error = "'" + path + "' was replaced, but its directory could not be synced (may not survive a power loss): " +
+            std::strerror(e);
+    return false;
+  }
+  ::close(dfd);
+  return true;
+}
+
+}  // namespace ve::config

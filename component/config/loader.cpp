@@ -1,0 +1,1019 @@
+#include "config/loader.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <map>
+
+#include "config/embedded.hpp"
+#include "core/sample.hpp"
+
+namespace ve::config {
+
+std::string ConfigError::to_string() const {
+  std::string s = file;
+  if (line > 0) s += ":" + std::to_string(line) + ":" + std::to_string(column);
+  s += ": ";
+  if (!field.empty()) s += field + ": ";
+  s += message;
+  return s;
+}
+
+std::string to_string(const std::vector<ConfigError>& errors) {
+  std::string s;
+  for (const auto& e : errors) s += e.to_string() + "\n";
+  return s;
+}
+
+namespace schema {
+
+// ---------------------------------------------------------------------------
+// Scalar conversion
+namespace {
+
+Pos to_pos(const YAML::Mark& m) {
+  if (m.is_null() || m.line < 0 || m.column < 0) return {};
+  return {m.line + 1, m.column + 1};
+}
+
+/// Quoted scalars are strings even when they look like numbers: `"5"` is not 5.
+bool is_quoted(const YAML::Node& n) { return n.Tag() == "!" || n.Tag() == "tag:yaml.org,2002:str"; }
+
+std::string describe(const YAML::Node& n) {
+  switch (n.Type()) {
+    case YAML::NodeType::Null:
+      return "nothing (null)";
+    case YAML::NodeType::Scalar:
+      return is_quoted(n) ? "the string \"" + n.Scalar() + "\"" : "'" + n.Scalar() + "'";
+    case YAML::NodeType::Sequence:
+      return "a sequence";
+    case YAML::NodeType::Map:
+      return "a mapping";
+    default:
+      return "an undefined value";
+  }
+}
+
+enum class Parsed { ok, bad, out_of_range };
+
+/// YAML-1.2-core-style decimal number; no inf/nan, no hex, no underscores.
+Parsed parse_double(std::string_view s, double& out) {
+  if (!s.empty() && s.front() == '+') {
+    s.remove_prefix(1);
+    if (!s.empty() && s.front() == '-') return Parsed::bad;
+  }
+  if (s.empty()) return Parsed::bad;
+  const char c = s.front() == '-' ? (s.size() > 1 ? s[1] : '\0') : s.front();
+  if (!(std::isdigit(static_cast<unsigned char>(c)) || c == '.')) return Parsed::bad;  // rejects inf, nan
+  double v = 0.0;
+  const auto r = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (r.ec == std::errc::result_out_of_range) return Parsed::out_of_range;
+  if (r.ec != std::errc() || r.ptr != s.data() + s.size()) return Parsed::bad;
+  if (!std::isfinite(v)) return Parsed::out_of_range;
+  out = v;
+  return Parsed::ok;
+}
+
+template <class T>
+Parsed parse_integer(std::string_view s, T& out) {
+  if (!s.empty() && s.front() == '+') {
+    s.remove_prefix(1);
+    if (!s.empty() && s.front() == '-') return Parsed::bad;
+  }
+  if (s.empty()) return Parsed::bad;
+  T v{};
+  const auto r = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (r.ec == std::errc::result_out_of_range) return Parsed::out_of_range;
+  if (r.ec != std::errc() || r.ptr != s.data() + s.size()) {
+    // "-1" for an unsigned type fails here too; call it out of range, not garbage.
+    if (std::is_unsigned_v<T> && s.front() == '-') {
+      std::int64_t tmp;
+      if (parse_integer(s, tmp) == Parsed::ok) return Parsed::out_of_range;
+    }
+    return Parsed::bad;
+  }
+  out = v;
+  return Parsed::ok;
+}
+
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    cur[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const bool same = std::tolower(static_cast<unsigned char>(a[i - 1])) ==
+                        std::tolower(static_cast<unsigned char>(b[j - 1]));
+      cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + (same ? 0 : 1)});
+    }
+    std::swap(prev, cur);
+  }
+  return prev[b.size()];
+}
+
+/// The known key a typo most likely meant, or "" if none is close.
+std::string closest_key(std::string_view key, const std::vector<std::string>& known) {
+  std::string best;
+  std::size_t best_d = std::numeric_limits<std::size_t>::max();
+  for (const auto& k : known) {
+    // Units are part of every name; a key without its unit suffix is a near miss.
+    if (k.size() > key.size() && k.compare(0, key.size(), key) == 0 && k[key.size()] == '_' &&
+        k.find('_', key.size() + 1) == std::string::npos)
+      return k;
+    const std::size_t d = edit_distance(key, k);
+    if (d < best_d) {
+      best_d = d;
+      best = k;
+    }
+  }
+  const std::size_t limit = std::max<std::size_t>(2, best.size() / 3);
+  if (best.empty() || best_d > limit || best_d >= key.size() || best_d >= best.size()) return {};
+  return best;
+}
+
+}  // namespace
+
+std::string format_number(double x) {
+  char buf[64];
+  const auto r = std::to_chars(buf, buf + sizeof buf, x);
+  return std::string(buf, r.ptr);
+}
+
+Check<double> greater_than(double lo) {
+  return [lo](const double& x) {
+    return x > lo ? std::string() : "must be > " + format_number(lo) + ", got " + format_number(x);
+  };
+}
+
+Check<double> at_least(double lo) {
+  return [lo](const double& x) {
+    return x >= lo ? std::string() : "must be >= " + format_number(lo) + ", got " + format_number(x);
+  };
+}
+
+// ---------------------------------------------------------------------------
+// Document
+
+struct Document::Impl {
+  YAML::Node root;
+  bool parsed = false;
+};
+
+Document::Document(std::string file, std::vector<ConfigError>& errors)
+    : file_(std::move(file)), errors_(errors), impl_(std::make_unique<Impl>()) {}
+Document::~Document() = default;
+
+bool Document::parse(const std::string& text) {
+  try {
+    impl_->root = YAML::Load(text);
+    impl_->parsed = true;
+    return true;
+  } catch (const YAML::ParserException& e) {
+    error(to_pos(e.mark), "", "malformed YAML: " + e.msg);
+  } catch (const YAML::Exception& e) {
+    error(to_pos(e.mark), "", "malformed YAML: " + e.msg);
+  }
+  return false;
+}
+
+void Document::error(Pos pos, std::string field, std::string message) {
+  ConfigError e;
+  e.file = file_;
+  e.line = pos.line;
+  e.column = pos.column;
+  e.field = std::move(field);
+  e.message = std::move(message);
+  errors_.push_back(std::move(e));
+}
+
+// ---------------------------------------------------------------------------
+// Value
+
+struct Value::Impl {
+  Document* doc = nullptr;
+  YAML::Node node;
+  bool present = false;
+  std::string path;
+  Pos pos;
+};
+
+Value::Value() = default;
+Value::~Value() = default;
+Value::Value(Value&&) noexcept = default;
+Value& Value::operator=(Value&&) noexcept = default;
+
+bool Value::present() const { return impl_ && impl_->present; }
+bool Value::is_null() const { return present() && impl_->node.IsNull(); }
+bool Value::is_map() const { return present() && impl_->node.IsMap(); }
+bool Value::is_sequence() const { return present() && impl_->node.IsSequence(); }
+Pos Value::pos() const { return impl_ ? impl_->pos : Pos{}; }
+const std::string& Value::path() const {
+  static const std::string empty;
+  return impl_ ? impl_->path : empty;
+}
+Document& Value::document() const { return *impl_->doc; }
+
+void Value::error(const std::string& message) const {
+  if (impl_ && impl_->doc) impl_->doc->error(impl_->pos, impl_->path, message);
+}
+
+namespace {
+
+/// Shared integer conversion: the node is known to be present.
+template <class T>
+bool convert_integer(const Value& v, const YAML::Node& n, T& out, const Check<T>& check) {
+  if (!n.IsScalar() || is_quoted(n)) {
+    v.error("expected an integer, got " + describe(n));
+    return false;
+  }
+  T x{};
+  switch (parse_integer(n.Scalar(), x)) {
+    case Parsed::ok:
+      break;
+    case Parsed::out_of_range:
+      v.error("must be in [" + std::to_string(std::numeric_limits<T>::min()) + ", " +
+              std::to_string(std::numeric_limits<T>::max()) + "], got " + n.Scalar());
+      return false;
+    case Parsed::bad: {
+      double d;
+      v.error(parse_double(n.Scalar(), d) == Parsed::ok ? "expected an integer, got " + n.Scalar()
+                                                        : "expected an integer, got " + describe(n));
+      return false;
+    }
+  }
+  if (check) {
+    const std::string why = check(x);
+    if (!why.empty()) {
+      v.error(why);
+      return false;
+    }
+  }
+  out = x;
+  return true;
+}
+
+/// Converts a number node; errors go to `doc` at `path`. Shared by scalars and tables.
+bool convert_double(Document& doc, const YAML::Node& n, const std::string& path, Pos pos, double& out,
+                    const Check<double>& check) {
+  if (!n.IsScalar() || is_quoted(n)) {
+    doc.error(pos, path, "expected a number, got " + describe(n));
+    return false;
+  }
+  double x = 0.0;
+  switch (parse_double(n.Scalar(), x)) {
+    case Parsed::ok:
+      break;
+    case Parsed::out_of_range:
+      doc.error(pos, path, "number out of range: " + n.Scalar());
+      return false;
+    case Parsed::bad:
+      doc.error(pos, path, "expected a number, got " + describe(n));
+      return false;
+  }
+  if (check) {
+    const std::string why = check(x);
+    if (!why.empty()) {
+      doc.error(pos, path, why);
+      return false;
+    }
+  }
+  out = x;
+  return true;
+}
+
+}  // namespace
+
+bool Value::as(std::string& out, const Check<std::string>& check) const {
+  if (!present()) return false;
+  const YAML::Node& n = impl_->node;
+  if (!n.IsScalar()) {
+    error("expected a string, got " + describe(n));
+    return false;
+  }
+  if (check) {
+    const std::string why = check(n.Scalar());
+    if (!why.empty()) {
+      error(why);
+      return false;
+    }
+  }
+  out = n.Scalar();
+  return true;
+}
+
+bool Value::as(bool& out) const {
+  if (!present()) return false;
+  const YAML::Node& n = impl_->node;
+  if (n.IsScalar() && !is_quoted(n)) {
+    const std::string& s = n.Scalar();
+    // YAML 1.2 core booleans only: `yes`/`on` would be strings to other YAML 1.2 tools.
+    if (s == "true" || s == "True" || s == "TRUE") {
+      out = true;
+      return true;
+    }
+    if (s == "false" || s == "False" || s == "FALSE") {
+      out = false;
+      return true;
+    }
+  }
+  error("expected true or false, got " + describe(n));
+  return false;
+}
+
+bool Value::as(int& out, const Check<int>& check) const {
+  if (!present()) return false;
+  return convert_integer(*this, impl_->node, out, check);
+}
+
+bool Value::as(std::int64_t& out, const Check<std::int64_t>& check) const {
+  if (!present()) return false;
+  return convert_integer(*this, impl_->node, out, check);
+}
+
+bool Value::as(std::uint32_t& out, const Check<std::uint32_t>& check) const {
+  if (!present()) return false;
+  return convert_integer(*this, impl_->node, out, check);
+}
+
+bool Value::as(std::uint64_t& out) const {
+  if (!present()) return false;
+  return convert_integer(*this, impl_->node, out, Check<std::uint64_t>{});
+}
+
+bool Value::as(double& out, const Check<double>& check) const {
+  if (!present()) return false;
+  return convert_double(*impl_->doc, impl_->node, impl_->path, impl_->pos, out, check);
+}
+
+bool Value::as(std::vector<double>& out, const Check<double>& check) const {
+  if (!present()) return false;
+  const YAML::Node& n = impl_->node;
+  if (!n.IsSequence()) {
+    error("expected a sequence of numbers, got " + describe(n));
+    return false;
+  }
+  // A damaged table could otherwise produce one error per element.
+  constexpr int kMaxErrors = 5;
+  int errors = 0;
+  std::vector<double> values;
+  values.reserve(n.size());
+  std::size_t i = 0;
+  for (auto it = n.begin(); it != n.end(); ++it, ++i) {
+    const YAML::Node& e = *it;
+    double x = 0.0;
+    if (e.IsScalar() && !is_quoted(e) && parse_double(e.Scalar(), x) == Parsed::ok && !check) {
+      values.push_back(x);  // fast path: no strings built for good elements
+      continue;
+    }
+    if (errors >= kMaxErrors) {
+      ++errors;
+      continue;
+    }
+    const Pos p = e.IsNull() ? impl_->pos : to_pos(e.Mark());
+    if (convert_double(*impl_->doc, e, impl_->path + "[" + std::to_string(i) + "]", p, x, check))
+      values.push_back(x);
+    else
+      ++errors;
+  }
+  if (errors > kMaxErrors)
+    error(std::to_string(errors - kMaxErrors) + " more bad elements not listed");
+  if (errors > 0) return false;
+  out = std::move(values);
+  return true;
+}
+
+std::size_t Value::size() const { return is_sequence() ? impl_->node.size() : 0; }
+
+Value Value::at(std::size_t i) const {
+  const YAML::Node e = impl_->node[i];
+  const Pos p = e.IsNull() ? impl_->pos : to_pos(e.Mark());
+  Value v;
+  v.impl_.reset(new Impl{impl_->doc, e, true, impl_->path + "[" + std::to_string(i) + "]", p.line ? p : impl_->pos});
+  return v;
+}
+
+// ---------------------------------------------------------------------------
+// Map
+
+struct Map::Impl {
+  struct Entry {
+    std::string key;
+    YAML::Node value;
+    Pos key_pos;
+    Pos value_pos;
+    bool used = false;
+  };
+  Document* doc = nullptr;
+  std::string path;
+  Pos pos;
+  bool valid = true;
+  bool finished = false;
+  std::vector<Entry> entries;
+  std::vector<std::string> known;
+
+  const Entry* find(std::string_view key) const {
+    for (const auto& e : entries)
+      if (e.key == key) return &e;
+    return nullptr;
+  }
+};
+
+
+Map Value::as_map() const {
+  Map m;
+  m.impl_ = std::make_unique<Map::Impl>();
+  Map::Impl& mi = *m.impl_;
+  mi.doc = impl_ ? impl_->doc : nullptr;
+  mi.path = path();
+  mi.pos = pos();
+  if (!present() || impl_->node.IsNull()) return m;
+  const YAML::Node& n = impl_->node;
+  if (!n.IsMap()) {
+    error("expected a mapping (key: value pairs), got " + describe(n));
+    mi.valid = false;
+    return m;
+  }
+  for (auto it = n.begin(); it != n.end(); ++it) {
+    const YAML::Node& k = it->first;
+    const Pos key_pos = to_pos(k.Mark());
+    if (!k.IsScalar()) {
+      mi.doc->error(key_pos.line ? key_pos : mi.pos, mi.path, "keys must be plain names, got " + describe(k));
+      continue;
+    }
+    const std::string& key = k.Scalar();
+    if (const Map::Impl::Entry* first = mi.find(key)) {
+      mi.doc->error(key_pos, m.field(key),
+                    "duplicate key '" + key + "' (first given at line " + std::to_string(first->key_pos.line) + ")");
+      continue;
+    }
+    Map::Impl::Entry e;
+    e.key = key;
+    e.value = it->second;
+    e.key_pos = key_pos;
+    // A null value has no position of its own (yaml-cpp points at the next token).
+    const Pos vp = it->second.IsNull() ? Pos{} : to_pos(it->second.Mark());
+    e.value_pos = vp.line ? vp : key_pos;
+    mi.entries.push_back(std::move(e));
+  }
+  return m;
+}
+
+Map::Map() = default;
+Map::~Map() {
+  if (impl_) finish();
+}
+Map::Map(Map&&) noexcept = default;
+Map& Map::operator=(Map&& other) noexcept {
+  if (this != &other) {
+    if (impl_) finish();
+    impl_ = std::move(other.impl_);
+  }
+  return *this;
+}
+
+Value Map::value(std::string_view key) {
+  Value v;
+  if (!impl_) return v;
+  Impl& mi = *impl_;
+  if (std::find(mi.known.begin(), mi.known.end(), key) == mi.known.end()) mi.known.emplace_back(key);
+  v.impl_ = std::make_unique<Value::Impl>();
+  v.impl_->doc = mi.doc;
+  v.impl_->path = field(key);
+  v.impl_->pos = mi.pos;
+  for (auto& e : mi.entries) {
+    if (e.key != key) continue;
+    e.used = true;
+    v.impl_->node = e.value;
+    v.impl_->present = true;
+    v.impl_->pos = e.value_pos;
+    break;
+  }
+  return v;
+}
+
+Value Map::required(std::string_view key) {
+  Value v = value(key);
+  if (!v.present() && impl_ && impl_->valid && impl_->doc)
+    impl_->doc->error(impl_->pos, field(key), "missing required key '" + std::string(key) + "'");
+  return v;
+}
+
+bool Map::has(std::string_view key) const { return impl_ && impl_->find(key) != nullptr; }
+
+Map Map::map(std::string_view key) { return value(key).as_map(); }
+
+void Map::reject(std::string_view key, const std::string& why) {
+  if (!impl_) return;
+  for (auto& e : impl_->entries) {
+    if (e.key != key || e.used) continue;
+    e.used = true;
+    impl_->doc->error(e.key_pos, field(key), "unexpected key '" + e.key + "': " + why);
+  }
+}
+
+Pos Map::pos() const { return impl_ ? impl_->pos : Pos{}; }
+const std::string& Map::path() const {
+  static const std::string empty;
+  return impl_ ? impl_->path : empty;
+}
+std::string Map::field(std::string_view key) const {
+  const std::string& p = path();
+  return p.empty() ? std::string(key) : p + "." + std::string(key);
+}
+Document& Map::document() const { return *impl_->doc; }
+bool Map::valid() const { return impl_ && impl_->valid; }
+
+void Map::finish() {
+  if (!impl_ || impl_->finished) return;
+  impl_->finished = true;
+  if (!impl_->doc) return;
+  for (const auto& e : impl_->entries) {
+    if (e.used) continue;
+    std::string msg = "unknown key '" + e.key + "'";
+    const std::string near = closest_key(e.key, impl_->known);
+    if (!near.empty()) {
+      msg += "; did you mean '" + near + "'?";
+    } else if (!impl_->known.empty()) {
+      std::vector<std::string> sorted = impl_->known;
+      std::sort(sorted.begin(), sorted.end());
+      msg += " (valid keys here: ";
+      for (std::size_t i = 0; i < sorted.size(); ++i) msg += (i ? ", " : "") + sorted[i];
+      msg += ")";
+    } else {
+      msg += " (no keys are valid here)";
+    }
+    impl_->doc->error(e.key_pos, field(e.key), msg);
+  }
+}
+
+void Map::discard() {
+  if (impl_) impl_->finished = true;
+}
+
+Map Document::root() {
+  Value v;
+  v.impl_ = std::make_unique<Value::Impl>();
+  v.impl_->doc = this;
+  v.impl_->present = impl_->parsed;
+  v.impl_->node = impl_->root;
+  const Pos p = impl_->root.IsNull() ? Pos{} : to_pos(impl_->root.Mark());
+  v.impl_->pos = p.line ? p : Pos{1, 1};
+  Map m = v.as_map();
+  if (!impl_->parsed) m.impl_->valid = false;
+  return m;
+}
+
+// ---------------------------------------------------------------------------
+
+bool read_text_file(const std::string& path, std::string& text, std::string& error) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) {
+    error = std::strerror(errno);
+    return false;
+  }
+  struct stat st {};
+  if (::fstat(fd, &st) == 0 && S_ISDIR(st.st_mode)) {
+    ::close(fd);
+    error = std::strerror(EISDIR);
+    return false;
+  }
+  std::string out;
+  if (st.st_size > 0) out.reserve(static_cast<std::size_t>(st.st_size));
+  char buf[65536];
+  for (;;) {
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n == 0) break;
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      error = std::strerror(errno);
+      ::close(fd);
+      return false;
+    }
+    out.append(buf, static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  text = std::move(out);
+  return true;
+}
+
+void sort_errors(std::vector<ConfigError>& errors) {
+  std::vector<std::string> files;
+  for (const auto& e : errors)
+    if (std::find(files.begin(), files.end(), e.file) == files.end()) files.push_back(e.file);
+  auto rank = [&files](const std::string& f) { return std::find(files.begin(), files.end(), f) - files.begin(); };
+  std::stable_sort(errors.begin(), errors.end(), [&rank](const ConfigError& a, const ConfigError& b) {
+    const auto ra = rank(a.file), rb = rank(b.file);
+    if (ra != rb) return ra < rb;
+    if (a.line != b.line) return a.line < b.line;
+    return a.column < b.column;
+  });
+}
+
+}  // namespace schema
+
+// ---------------------------------------------------------------------------
+// Machine and motor schemas
+
+namespace {
+
+namespace fs = std::filesystem;
+using schema::Check;
+using schema::format_number;
+using schema::Map;
+using schema::Value;
+
+/// Where the files a machine file refers to come from: the disk, or the
+/// embedded copies (so the default configuration works with no files installed).
+class Files {
+ public:
+  virtual ~Files() = default;
+  /// `rel` as written in `from`, turned into a path this source can open.
+  virtual std::string resolve(const std::string& from, const std::string& rel) const = 0;
+  virtual bool read(const std::string& path, std::string& text, std::string& error) const = 0;
+  virtual bool readable(const std::string& path, std::string& error) const = 0;
+  /// The name errors use for the file.
+  virtual std::string display(const std::string& path) const = 0;
+  /// The path stored in the config for other components to open.
+  virtual std::string stored(const std::string& path) const = 0;
+};
+
+class DiskFiles final : public Files {
+ public:
+  std::string resolve(const std::string& from, const std::string& rel) const override {
+    const fs::path r(rel);
+    if (r.is_absolute()) return rel;
+    const fs::path joined = fs::path(from).parent_path() / r;
+    const fs::path normal = joined.lexically_normal();
+    // "dir/../x" names something else when dir is a symlink; shorten the path
+    // for error messages only when both spellings reach the same file.
+    std::error_code ec;
+    if (normal != joined && fs::equivalent(joined, normal, ec)) return normal.string();
+    return normal == joined ? normal.string() : joined.string();
+  }
+  bool read(const std::string& path, std::string& text, std::string& error) const override {
+    return schema::read_text_file(path, text, error);
+  }
+  bool readable(const std::string& path, std::string& error) const override {
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) {
+      error = std::strerror(errno);
+      return false;
+    }
+    if (S_ISDIR(st.st_mode)) {
+      error = std::strerror(EISDIR);
+      return false;
+    }
+    if (::access(path.c_str(), R_OK) != 0) {
+      error = std::strerror(errno);
+      return false;
+    }
+    return true;
+  }
+  std::string display(const std::string& path) const override { return path; }
+  std::string stored(const std::string& path) const override { return path; }
+};
+
+class EmbeddedFiles final : public Files {
+ public:
+  std::string resolve(const std::string& from, const std::string& rel) const override {
+    return (fs::path(from).parent_path() / fs::path(rel)).lexically_normal().generic_string();
+  }
+  bool read(const std::string& path, std::string& text, std::string& error) const override {
+    const auto& files = embedded_files();
+    const auto it = files.find(path);
+    if (it == files.end()) {
+      error = "not among the embedded files";
+      return false;
+    }
+    text = it->second;
+    return true;
+  }
+  bool readable(const std::string& path, std::string& error) const override {
+    std::string text;
+    return read(path, text, error);
+  }
+  std::string display(const std::string& path) const override { return kEmbeddedPrefix + path; }
+  std::string stored(const std::string&) const override { return {}; }
+};
+
+Check<double> positive() { return schema::greater_than(0.0); }
+Check<double> non_negative() { return schema::at_least(0.0); }
+
+Check<std::string> non_empty() {
+  return [](const std::string& s) { return s.empty() ? std::string("must not be empty") : std::string(); };
+}
+
+std::string range_text(double lo, double hi) { return "[" + format_number(lo) + ", " + format_number(hi) + "]"; }
+
+// ---- motor file -------------------------------------------------------------
+
+/// Reads an optional number; true when it is absent or valid (so cross-checks
+/// may use the field), false when an error was reported for it.
+template <class T>
+bool optional(Map& m, std::string_view key, T& out, const Check<T>& check = {}) {
+  const Value v = m.value(key);
+  return !v.present() || v.as(out, check);
+}
+
+void read_motor(Map m, core::MotorConfig& motor) {
+  m.require("motor", motor.name, non_empty());
+  m.get("magnet_pitch_m", motor.magnet_pitch_m, [](const double& x) {
+    return (x > 0.0 && x <= 1.0) ? std::string() : "must be in (0, 1], got " + format_number(x);
+  });
+  m.get("travel_m", motor.travel_m, positive());
+  m.get("sample_rate_hz", motor.sample_rate_hz, schema::in_range(100.0, 100000.0));
+
+  Map hall = m.map("hall");
+  core::HallConfig& h = motor.hall;
+  const bool count_ok = optional(hall, "count", h.count, schema::in_range(1, core::kMaxHalls));
+  const Value offsets = hall.value("offsets_m");
+  std::vector<double> off;
+  if (offsets.as(off)) {
+    if (count_ok && static_cast<int>(off.size()) != h.count)
+      offsets.error("has " + std::to_string(off.size()) + " entries but count is " + std::to_string(h.count));
+    else
+      h.offsets_m = std::move(off);
+  }
+  hall.get("spacing_m", h.spacing_m, positive());
+  const bool offset_ok = optional<double>(hall, "offset_v", h.offset_v);
+  hall.get("amplitude_v", h.amplitude_v, positive());
+  hall.get("noise_v", h.noise_v, non_negative());
+  hall.get("saturation_margin_v", h.saturation_margin_v, non_negative());
+
+  Map adc = m.map("adc");
+  adc.get("bits", motor.adc.bits, schema::in_range(8, 24));
+  const bool min_ok = optional<double>(adc, "min_v", motor.adc.min_v);
+  const bool max_ok = optional<double>(adc, "max_v", motor.adc.max_v);
+  if (min_ok && max_ok) {
+    if (!(motor.adc.max_v > motor.adc.min_v))
+      adc.value("max_v").error("max_v (" + format_number(motor.adc.max_v) + ") must be greater than min_v (" +
+                               format_number(motor.adc.min_v) + ")");
+    else if (offset_ok && (h.offset_v < motor.adc.min_v || h.offset_v > motor.adc.max_v))
+      hall.value("offset_v").error("offset_v (" + format_number(h.offset_v) + ") must lie inside the ADC range " +
+                                   range_text(motor.adc.min_v, motor.adc.max_v));
+  }
+  {
+    Map acc = m.map("accelerometer");
+    acc.get("noise_mps2", motor.accelerometer.noise_mps2, non_negative());
+    acc.get("range_mps2", motor.accelerometer.range_mps2, positive());
+  }
+  {
+    Map f = m.map("filter");
+    f.get("jerk_std_mps3", motor.filter.jerk_std_mps3, positive());
+    f.get("hall_position_floor_m", motor.filter.hall_position_floor_m, non_negative());
+    f.get("gate_sigma", motor.filter.gate_sigma, positive());
+    f.get("initial_position_std_m", motor.filter.initial_position_std_m, positive());
+    f.get("initial_velocity_std_mps", motor.filter.initial_velocity_std_mps, positive());
+    f.get("initial_acceleration_std_mps2", motor.filter.initial_acceleration_std_mps2, positive());
+  }
+}
+
+// ---- machine file -------------------------------------------------------------
+
+struct MotorEntry {
+  bool ok = false;
+  core::MotorConfig motor;
+};
+
+class MachineLoader {
+ public:
+  MachineLoader(const Files& files, std::string path, std::vector<ConfigError>& errors)
+      : files_(files), path_(std::move(path)), errors_(errors) {}
+
+  void load(MachineConfig& cfg) {
+    cfg.source = files_.display(path_);
+    std::string text, why;
+    if (!files_.read(path_, text, why)) {
+      errors_.push_back({cfg.source, 0, 0, "", "cannot read machine file: " + why});
+      return;
+    }
+    schema::Document doc(cfg.source, errors_);
+    if (!doc.parse(text)) return;
+    Map root = doc.root();
+    read_machine(root, cfg);
+  }
+
+ private:
+  /// Resolves a path written in the machine file and checks that it can be read.
+  bool referenced_file(const Value& v, std::string& resolved) {
+    std::string rel;
+    if (!v.as(rel, non_empty())) return false;
+    resolved = files_.resolve(path_, rel);
+    std::string why;
+    if (!files_.readable(resolved, why)) {
+      v.error("cannot read '" + rel + "'" + (resolved != rel ? " (" + files_.display(resolved) + ")" : "") +
+              ": " + why);
+      return false;
+    }
+    return true;
+  }
+
+  const MotorEntry& motor(const Value& v) {
+    std::string rel;
+    static const MotorEntry kFailed;
+    if (!v.as(rel, non_empty())) return kFailed;
+    const std::string resolved = files_.resolve(path_, rel);
+    auto [it, fresh] = motors_.try_emplace(resolved);
+    if (!fresh) return it->second;
+    std::string text, why;
+    if (!files_.read(resolved, text, why)) {
+      v.error("cannot read motor file '" + rel + "'" +
+              (resolved != rel ? " (" + files_.display(resolved) + ")" : "") + ": " + why);
+      return it->second;
+    }
+    const std::size_t before = errors_.size();
+    schema::Document doc(files_.display(resolved), errors_);
+    if (doc.parse(text)) read_motor(doc.root(), it->second.motor);
+    it->second.ok = errors_.size() == before;
+    return it->second;
+  }
+
+  void read_machine(Map& root, MachineConfig& cfg) {
+    root.get("machine", cfg.name, non_empty());
+    {
+      Map dds = root.map("dds");
+      dds.get("domain", cfg.dds.domain, schema::in_range(0, 232));
+      dds.get("deadline_ms", cfg.dds.deadline_ms, [](const double& x) {
+        if (x < 1.0) return "must be >= 1, got " + format_number(x);
+        if (x != std::floor(x))
+          return "must be a whole number of milliseconds (Fast DDS 2.9 rounds deadlines to ms), got " +
+                 format_number(x);
+        return std::string();
+      });
+      const Value profiles = dds.value("profiles_file");
+      if (profiles.present()) referenced_file(profiles, cfg.dds.profiles_file);
+    }
+    const Value axes = root.required("axes");
+    if (!axes.present()) return;
+    if (!axes.is_sequence() || axes.size() == 0) {
+      axes.error(axes.is_sequence() ? std::string("must list at least one axis")
+                                    : "expected a sequence of axes, got " + std::string(axes.is_map() ? "a mapping" : "a scalar or nothing"));
+      return;
+    }
+    cfg.axes.resize(axes.size());
+    for (std::size_t i = 0; i < axes.size(); ++i) {
+      const Value item = axes.at(i);
+      cfg.axes[i].id = static_cast<std::uint32_t>(i + 1);
+      Map a = item.as_map();
+      if (!a.valid()) continue;
+      read_axis(a, cfg.axes[i]);
+      check_unique(a, cfg, i);
+    }
+  }
+
+  void check_unique(Map& a, const MachineConfig& cfg, std::size_t i) {
+    const AxisConfig& axis = cfg.axes[i];
+    for (std::size_t j = 0; j < i; ++j) {
+      const std::string other = "axes[" + std::to_string(j) + "]";
+      if (!axis.name.empty() && axis.name == cfg.axes[j].name)
+        a.value("name").error("duplicate axis name '" + axis.name + "' (also " + other + ")");
+      if (axis.id == cfg.axes[j].id)
+        a.value("id").error("duplicate id " + std::to_string(axis.id) + " (also " + other +
+                            "; ids default to position + 1)");
+    }
+  }
+
+  static std::string check_axis_name(const std::string& s) {
+    if (s.empty() || s.size() > 15) return "must be 1 to 15 characters, got " + std::to_string(s.size());
+    for (const char c : s)
+      if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'))
+        return "may contain only letters, digits, '_' and '-', got '" + s + "'";
+    return {};
+  }
+
+  void read_axis(Map& a, AxisConfig& axis) {
+    a.require("name", axis.name, Check<std::string>(check_axis_name));
+    a.get("id", axis.id);
+    const Value motor_ref = a.required("motor");
+    const MotorEntry* m = nullptr;
+    if (motor_ref.present()) {
+      m = &motor(motor_ref);
+      axis.motor = m->motor;
+      std::string rel;
+      if (motor_ref.as(rel)) axis.motor_file = files_.stored(files_.resolve(path_, rel));
+    }
+    // Position checks need the motor's travel; skip them when the motor file
+    // itself is broken (its errors are already reported).
+    const double travel = (m && m->ok) ? m->motor.travel_m : -1.0;
+
+    const Value cal = a.value("calibration");
+    if (cal.present()) {
+      std::string resolved;
+      if (referenced_file(cal, resolved)) axis.calibration_file = files_.stored(resolved);
+    }
+    read_driver(a.map("driver"), axis.driver, travel);
+    {
+      Map out = a.map("output");
+      out.get("counts_per_m", axis.output.counts_per_m, positive());
+      out.get("direction", axis.output.direction, [](const int& d) {
+        return (d == 1 || d == -1) ? std::string() : "must be 1 or -1, got " + std::to_string(d);
+      });
+      out.get("preset_counts", axis.output.preset_counts);
+    }
+    {
+      Map h = a.map("homing");
+      h.get_enum("mode", axis.homing.mode,
+                 {{"none", HomingConfig::Mode::none}, {"startup_position", HomingConfig::Mode::startup_position}});
+      if (h.get("position_m", axis.homing.position_m) || axis.homing.mode == HomingConfig::Mode::startup_position)
+        within_travel(h, "position_m", axis.homing.position_m, travel);
+    }
+  }
+
+  /// Cross-check against the motor's travel; reports at the value, or at the
+  /// enclosing mapping when the value is a default.
+  static void within_travel(Map& m, std::string_view key, double x, double travel) {
+    if (travel <= 0.0 || (x >= 0.0 && x <= travel)) return;
+    const Value v = m.value(key);
+    v.error(std::string(key) + (v.present() ? " " : " (default) ") + format_number(x) +
+            " is outside the motor's travel " + range_text(0.0, travel) + " m");
+  }
+
+  void read_driver(Map d, DriverConfig& drv, double travel) {
+    d.get_enum("type", drv.kind, {{"sim", DriverConfig::Kind::sim}, {"replay", DriverConfig::Kind::replay}});
+    if (drv.kind == DriverConfig::Kind::replay) {
+      const std::string why = "only used with type: sim";
+      for (const char* k : {"realtime", "noise_seed", "profile", "imperfections"}) d.reject(k, why);
+      const Value log = d.required("log");
+      if (log.present()) referenced_file(log, drv.replay_path);
+      if (!drv.replay_path.empty()) drv.replay_path = files_.stored(drv.replay_path);
+      return;
+    }
+    d.reject("log", "only used with type: replay");
+    sim::SimConfig& s = drv.sim;
+    d.get("realtime", s.realtime);
+    d.get("noise_seed", s.noise_seed);
+    read_profile(d.map("profile"), s.profile, travel);
+    {
+      Map im = d.map("imperfections");
+      sim::ImperfectionConfig& c = s.imperfections;
+      im.get("track_seed", c.track_seed);
+      im.get("magnet_strength_std", c.magnet_strength_std, non_negative());
+      im.get("magnet_placement_std_m", c.magnet_placement_std_m, non_negative());
+      im.get("sensor_placement_std_m", c.sensor_placement_std_m, non_negative());
+      im.get("sensor_gain_std", c.sensor_gain_std, non_negative());
+      im.get("sensor_offset_std_v", c.sensor_offset_std_v, non_negative());
+      im.get("hall_delay_s", c.hall_delay_s, non_negative());
+      im.get("accel_bias_mps2", c.accel_bias_mps2);
+      im.get("accel_scale_error", c.accel_scale_error, schema::greater_than(-1.0));
+    }
+  }
+
+  static void read_profile(Map p, sim::MotionProfileConfig& c, double travel) {
+    using K = sim::MotionProfileConfig::Kind;
+    p.get_enum("type", c.kind,
+               {{"standstill", K::standstill},
+                {"constant_velocity", K::constant_velocity},
+                {"constant_acceleration", K::constant_acceleration},
+                {"multisine", K::multisine},
+                {"shuttle", K::shuttle}});
+    const bool start_ok = optional<double>(p, "start_m", c.start_m);
+    p.get("velocity_mps", c.velocity_mps);
+    p.get("acceleration_mps2", c.acceleration_mps2);
+    p.get("max_velocity_mps", c.max_velocity_mps, positive());
+    p.get("max_acceleration_mps2", c.max_acceleration_mps2, positive());
+    const bool min_ok = optional<double>(p, "min_m", c.min_m);
+    const bool max_ok = optional<double>(p, "max_m", c.max_m);
+    if (start_ok) within_travel(p, "start_m", c.start_m, travel);
+    if (min_ok) within_travel(p, "min_m", c.min_m, travel);
+    if (max_ok) within_travel(p, "max_m", c.max_m, travel);
+    if (!(min_ok && max_ok && start_ok)) return;
+    if (!(c.min_m < c.max_m)) {
+      p.value(p.has("max_m") ? "max_m" : "min_m")
+          .error("min_m (" + format_number(c.min_m) + ") must be less than max_m (" + format_number(c.max_m) + ")");
+    } else if (c.start_m < c.min_m || c.start_m > c.max_m) {
+      // The simulator keeps every profile inside [min_m, max_m]; a start outside it is a contradiction.
+      p.value("start_m").error("start_m " + format_number(c.start_m) + " is outside [min_m, max_m] = " +
+                               range_text(c.min_m, c.max_m));
+    }
+  }
+
+  const Files& files_;
+  std::string path_;
+  std::vector<ConfigError>& errors_;
+  std::map<std::string, MotorEntry> motors_;
+};
+
+LoadResult load(const Files& files, const std::string& path) {
+  LoadResult r;
+  MachineLoader(files, path, r.errors).load(r.config);
+  schema::sort_errors(r.errors);
+  return r;
+}
+
+}  // namespace
+
+LoadResult load_machine_file(const std::string& path) { return load(DiskFiles{}, path); }
+
+LoadResult load_embedded_default() { return load(EmbeddedFiles{}, kEmbeddedMachine); }
+
+}  // namespace ve::config

@@ -1,0 +1,62 @@
+// What a machine file describes, after loading and validation. Plain structs;
+// defaults in class. Only loader.cpp knows YAML.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "core/motor.hpp"
+#include "sim/sim_config.hpp"
+
+namespace ve::config {
+
+struct DriverConfig {
+  enum class Kind { sim, replay };
+  Kind kind = Kind::sim;
+  sim::SimConfig sim;       ///< kind == sim
+  std::string replay_path;  ///< kind == replay: raw log (resolved path)
+};
+
+/// Encoder-equivalent output scaling: counts = direction * position_m * counts_per_m + preset_counts.
+struct OutputConfig {
+  double counts_per_m = 1e7;  ///< 0.1 um per count
+  int direction = 1;          ///< +1 or -1
+  std::int64_t preset_counts = 0;
+};
+
+/// How the axis learns which magnet period it is in at start-up.
+struct HomingConfig {
+  enum class Mode {
+    none,              ///< position is relative to the period found at start-up; never HOMED
+    startup_position,  ///< the axis is known to be within half a pitch of position_m at start-up
+  };
+  Mode mode = Mode::startup_position;
+  double position_m = 0.5;
+};
+
+struct AxisConfig {
+  std::string name;         ///< e.g. "x"; at most 15 characters
+  std::uint32_t id = 0;     ///< DDS instance key; unique per machine
+  std::string motor_file;   ///< resolved path of the motor file ("" when embedded)
+  core::MotorConfig motor;
+  DriverConfig driver;
+  std::string calibration_file;  ///< resolved path; "" = nominal table, not calibrated
+  OutputConfig output;
+  HomingConfig homing;
+};
+
+struct DdsConfig {
+  int domain = 0;              ///< 0..232
+  double deadline_ms = 5.0;    ///< offered deadline per axis instance; whole milliseconds
+  std::string profiles_file;   ///< optional Fast DDS XML profiles (resolved path)
+};
+
+struct MachineConfig {
+  std::string name = "machine";
+  std::string source;  ///< file it came from (or "<embedded>/...")
+  DdsConfig dds;
+  std::vector<AxisConfig> axes;
+};
+
+}  // namespace ve::config

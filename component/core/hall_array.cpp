@@ -1,0 +1,107 @@
+#include "hall_array.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <utility>
+
+namespace ve::core {
+
+HallArray::HallArray(const MotorConfig& motor, HallTable table)
+    : table_(std::move(table)),
+      pitch_m_(motor.magnet_pitch_m),
+      sensors_(std::min(motor.hall.count, table_.sensors)),
+      lo_v_(motor.adc.min_v + motor.hall.saturation_margin_v),
+      hi_v_(motor.adc.max_v - motor.hall.saturation_margin_v) {
+  // Noise as read: analogue noise plus uniform quantisation of the ADC.
+  const double lsb = motor.adc.lsb_v();
+  const double var_v2 = motor.hall.noise_v * motor.hall.noise_v + lsb * lsb / 12.0;
+  weight_ = 1.0 / var_v2;
+  floor_m2_ = motor.filter.hall_position_floor_m * motor.filter.hall_position_floor_m;
+}
+
+bool HallArray::usable(const RawSample& s, int i) const {
+  return (s.hall_valid_mask >> i & 1u) && s.hall_v[i] > lo_v_ && s.hall_v[i] < hi_v_;
+}
+
+HallFix HallArray::solve(const RawSample& sample, double guess_m) const {
+  HallFix fix;
+  for (int i = 0; i < sensors_; ++i)
+    if (!(sample.hall_valid_mask >> i & 1u)) fix.missing_mask |= 1u << i;
+
+  // Gauss-Newton on sum_i w (y_i - T_i(x))^2 over the sensors out of saturation.
+  // The step is limited so that a poor guess cannot jump into another period.
+  const double max_step = pitch_m_ / 8.0;
+  double x = guess_m;
+  for (int iter = 0; iter < 6; ++iter) {
+    double h = 0.0, g = 0.0;
+    for (int i = 0; i < sensors_; ++i) {
+      if (!usable(sample, i)) continue;
+      double t, slope;
+      table_.evaluate(i, x, t, slope);
+      h += slope * slope;
+      g += slope * (sample.hall_v[i] - t);
+    }
+    if (h <= 0.0) return fix;
+    const double dx = std::clamp(g / h, -max_step, max_step);
+    x += dx;
+    if (std::abs(dx) < 1e-10) break;
+  }
+  if (x < table_.start_m || x > table_.end_m()) {
+    fix.out_of_table = true;
+    x = std::clamp(x, table_.start_m, table_.end_m());
+  }
+
+  // Residuals at the solution. Saturated sensors must agree too: a sensor reading
+  // a rail whose table value is far from that rail means we are in the wrong place.
+  double chi2 = 0.0;
+  int used = 0;
+  double h = 0.0;
+  for (int i = 0; i < sensors_; ++i) {
+    if (!(sample.hall_valid_mask >> i & 1u)) continue;
+    double t, slope;
+    table_.evaluate(i, x, t, slope);
+    const double r = sample.hall_v[i] - t;
+    if (usable(sample, i)) {
+      chi2 += r * r * weight_;
+      h += slope * slope;
+      ++used;
+    } else if (std::abs(r) > 0.25) {
+      return fix;  // inconsistent with a saturated sensor
+    }
+  }
+  if (used == 0 || h <= 0.0) return fix;
+  fix.ok = true;
+  fix.position_m = x;
+  fix.variance_m2 = 1.0 / (h * weight_) + floor_m2_;
+  fix.sensors_used = used;
+  fix.chi2 = chi2;
+  return fix;
+}
+
+HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m) const {
+  lo_m = std::max(lo_m, table_.start_m);
+  hi_m = std::min(hi_m, table_.end_m());
+  const int k0 = static_cast<int>(std::ceil((lo_m - table_.start_m) / table_.step_m));
+  const int k1 = static_cast<int>(std::floor((hi_m - table_.start_m) / table_.step_m));
+  double best = std::numeric_limits<double>::infinity();
+  int best_k = -1;
+  // Coarse scan on the grid with every sensor, saturated ones included (the table
+  // holds their clamped values), then refine around the best grid point.
+  for (int k = k0; k <= k1; ++k) {
+    double cost = 0.0;
+    for (int i = 0; i < sensors_; ++i) {
+      if (!(sample.hall_valid_mask >> i & 1u)) continue;
+      const double r = sample.hall_v[i] - table_.v[static_cast<std::size_t>(i) * table_.points + k];
+      cost += r * r;
+    }
+    if (cost < best) {
+      best = cost;
+      best_k = k;
+    }
+  }
+  if (best_k < 0) return HallFix{};
+  return solve(sample, table_.start_m + best_k * table_.step_m);
+}
+
+}  // namespace ve::core

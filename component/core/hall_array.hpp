@@ -1,0 +1,53 @@
+// Block SF: several saturating Hall sensors -> one carriage position with its
+// variance. Each sensor is used only where it is out of saturation; there its
+// slope is steep, and the fused variance follows from the slopes of the sensors
+// that contributed (a sample near a crossing of two steep sensors is worth more
+// than one seen by a single sensor near its clamp).
+#pragma once
+
+#include <cstdint>
+
+#include "hall_table.hpp"
+#include "motor.hpp"
+#include "sample.hpp"
+
+namespace ve::core {
+
+struct HallFix {
+  bool ok = false;
+  double position_m = 0.0;
+  double variance_m2 = 0.0;     ///< from the slopes and noise of the sensors used
+  int sensors_used = 0;         ///< sensors out of saturation that carried the fix
+  double chi2 = 0.0;            ///< sum of squared normalised residuals of the sensors used
+  std::uint32_t missing_mask = 0;  ///< bit i: sensor i had no sample
+  bool out_of_table = false;    ///< the solution ran into an end of the table
+};
+
+class HallArray {
+ public:
+  HallArray(const MotorConfig& motor, HallTable table);
+
+  /// Refines a position near `guess_m` (normally the filter's prediction).
+  /// Converges when the guess is within about pitch/8 of the truth. No allocation.
+  HallFix solve(const RawSample& sample, double guess_m) const;
+
+  /// Searches [lo_m, hi_m] for the best-matching position (start-up, re-acquisition),
+  /// then refines it. Cost grows with the window; use at most a few periods.
+  HallFix acquire(const RawSample& sample, double lo_m, double hi_m) const;
+
+  const HallTable& table() const { return table_; }
+  double pitch_m() const { return pitch_m_; }
+
+ private:
+  bool usable(const RawSample& s, int i) const;
+
+  HallTable table_;
+  double pitch_m_;
+  int sensors_;
+  double lo_v_;        ///< readings at or below are saturated low
+  double hi_v_;        ///< readings at or above are saturated high
+  double weight_;      ///< 1 / per-sensor voltage variance [1/V^2]
+  double floor_m2_;    ///< variance floor added to every fix [m^2]
+};
+
+}  // namespace ve::core

@@ -1,0 +1,75 @@
+#include "hall_table.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+namespace ve::core {
+
+void HallTable::evaluate(int sensor, double x_m, double& value_v, double& slope_v_per_m) const {
+  const double* row = v.data() + static_cast<std::size_t>(sensor) * static_cast<std::size_t>(points);
+  double u = (x_m - start_m) / step_m;
+  u = std::clamp(u, 0.0, static_cast<double>(points - 1));
+  int k = static_cast<int>(u);
+  if (k > points - 2) k = points - 2;
+  const double t = u - k;
+  // Catmull-Rom through p0..p3 around the interval [k, k+1]; ends mirror linearly.
+  const double p1 = row[k];
+  const double p2 = row[k + 1];
+  const double p0 = k > 0 ? row[k - 1] : 2.0 * p1 - p2;
+  const double p3 = k + 2 < points ? row[k + 2] : 2.0 * p2 - p1;
+  const double a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
+  const double b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
+  const double c = -0.5 * p0 + 0.5 * p2;
+  value_v = ((a * t + b) * t + c) * t + p1;
+  slope_v_per_m = ((3.0 * a * t + 2.0 * b) * t + c) / step_m;
+}
+
+HallTable nominal_hall_table(const MotorConfig& motor, int points_per_pitch) {
+  HallTable table;
+  table.step_m = motor.magnet_pitch_m / points_per_pitch;
+  table.start_m = 0.0;
+  table.points = static_cast<int>(std::ceil(motor.travel_m / table.step_m)) + 1;
+  table.sensors = motor.hall.count;
+  table.v.resize(static_cast<std::size_t>(table.points) * static_cast<std::size_t>(table.sensors));
+  const double k = 2.0 * M_PI / motor.magnet_pitch_m;
+  for (int s = 0; s < table.sensors; ++s) {
+    const double offset = motor.hall.offset_of(s);
+    for (int i = 0; i < table.points; ++i) {
+      const double x = table.start_m + i * table.step_m;
+      const double y = motor.hall.offset_v + motor.hall.amplitude_v * std::sin(k * (x + offset));
+      table.v[static_cast<std::size_t>(s) * table.points + i] = std::clamp(y, motor.adc.min_v, motor.adc.max_v);
+    }
+  }
+  return table;
+}
+
+std::string table_checksum(const HallTable& table) {
+  std::uint64_t h = 1469598103934665603ull;
+  auto mix = [&h](const void* data, std::size_t n) {
+    const auto* p = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < n; ++i) {
+      h ^= p[i];
+      h *= 1099511628211ull;
+    }
+  };
+  // Hash values rounded to 1 uV and 1 nm so that a decimal text round trip is stable.
+  auto mix_rounded = [&mix](double x, double unit) {
+    const auto q = static_cast<std::int64_t>(std::llround(x / unit));
+    mix(&q, sizeof q);
+  };
+  mix_rounded(table.start_m, 1e-9);
+  mix_rounded(table.step_m, 1e-12);
+  mix(&table.points, sizeof table.points);
+  mix(&table.sensors, sizeof table.sensors);
+  for (double x : table.v) mix_rounded(x, 1e-6);
+  static const char* kHex = "0123456789abcdef";
+  std::string out(16, '0');
+  for (int i = 15; i >= 0; --i) {
+    out[static_cast<std::size_t>(i)] = kHex[h & 0xF];
+    h >>= 4;
+  }
+  return out;
+}
+
+}  // namespace ve::core

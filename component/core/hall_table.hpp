@@ -1,0 +1,61 @@
+// Per-sensor Hall output versus carriage position over the whole travel. Every
+// magnet period keeps its own entries: with magnet tolerances of tens of um a
+// single folded period would already exceed the 5 um budget.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "motor.hpp"
+
+namespace ve::core {
+
+struct HallTable {
+  double start_m = 0.0;  ///< carriage position of grid point 0 [m]
+  double step_m = 0.0;   ///< grid spacing [m]
+  int points = 0;        ///< grid points per sensor
+  int sensors = 0;
+  /// sensors * points values, sensor-major: v[s * points + k] is sensor s at start_m + k * step_m [V].
+  std::vector<double> v;
+
+  double end_m() const { return start_m + step_m * (points - 1); }
+  bool contains(double x_m) const { return x_m >= start_m && x_m <= end_m(); }
+  bool valid() const {
+    return points >= 4 && sensors > 0 && step_m > 0.0 &&
+           v.size() == static_cast<std::size_t>(points) * static_cast<std::size_t>(sensors);
+  }
+
+  /// Output of `sensor` at `x_m` and its slope dV/dx [V/m]: cubic (Catmull-Rom)
+  /// interpolation; positions outside the grid are clamped to it.
+  void evaluate(int sensor, double x_m, double& value_v, double& slope_v_per_m) const;
+  double value(int sensor, double x_m) const {
+    double val, slope;
+    evaluate(sensor, x_m, val, slope);
+    return val;
+  }
+};
+
+/// The table a perfect motor of this description would have (no calibration).
+/// Grid: the whole travel at pitch / points_per_pitch.
+HallTable nominal_hall_table(const MotorConfig& motor, int points_per_pitch = 256);
+
+/// What identifies a calibration and what it must match to be used.
+struct CalibrationInfo {
+  std::string motor;         ///< MotorConfig::name it was made for
+  int hall_count = 0;
+  double magnet_pitch_m = 0.0;
+  std::string method;        ///< e.g. "reference"
+  std::string created_utc;   ///< ISO 8601
+  std::string id;            ///< checksum of the table, hex; names this calibration
+};
+
+struct Calibration {
+  CalibrationInfo info;
+  HallTable table;
+};
+
+/// FNV-1a 64 of the table's numbers and grid, as 16 hex digits.
+std::string table_checksum(const HallTable& table);
+
+}  // namespace ve::core

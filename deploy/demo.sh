@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The front door: set up, build, then run the virtual encoder on the built-in
+# simulated motor and watch it live from a second process over DDS.
+#   deploy/demo.sh [SECONDS]     (default: until Ctrl-C)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DURATION="${1:-0}"
+DOMAIN="${VE_DEMO_DOMAIN:-42}"
+
+bash deploy/setup.sh
+bash deploy/build.sh
+
+BIN=./build/virtual-encoder
+mkdir -p build/demo
+echo "demo: starting 'virtual-encoder run' (built-in simulator machine) on DDS domain $DOMAIN; log in build/demo/run.log"
+"$BIN" run --domain "$DOMAIN" >build/demo/run.log 2>&1 &
+RUN_PID=$!
+cleanup() {
+  kill -TERM "$RUN_PID" 2>/dev/null || true
+  wait "$RUN_PID" 2>/dev/null || true
+  echo "demo: publisher stopped; its log:"
+  tail -n 4 build/demo/run.log
+}
+trap cleanup EXIT
+
+echo "demo: 'virtual-encoder monitor' subscribes from a second process"
+"$BIN" monitor --domain "$DOMAIN" --duration "$DURATION"

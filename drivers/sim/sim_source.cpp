@@ -1,0 +1,278 @@
+#include "sim/sim_source.hpp"
+
+#include <time.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+namespace ve::sim {
+
+namespace {
+
+constexpr double kTwoPi = 6.283185307179586476925286766559;
+
+std::uint64_t splitmix(std::uint64_t z) {
+  z += 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+/// Counter-based generator: a stream of uniforms determined by (seed, key) alone, so a
+/// sample's noise or a magnet's tolerance does not depend on what was drawn before it.
+class Stream {
+ public:
+  Stream(std::uint64_t seed, std::uint64_t key) : state_(splitmix(seed ^ splitmix(key))) {}
+
+  /// Standard normal; Box-Muller, both outputs used.
+  double normal() {
+    if (have_spare_) {
+      have_spare_ = false;
+      return spare_;
+    }
+    const double u1 = (static_cast<double>(next() >> 11) + 1.0) * 0x1.0p-53;  // (0, 1]: log is finite
+    const double u2 = static_cast<double>(next() >> 11) * 0x1.0p-53;
+    const double r = std::sqrt(-2.0 * std::log(u1));
+    spare_ = r * std::sin(kTwoPi * u2);
+    have_spare_ = true;
+    return r * std::cos(kTwoPi * u2);
+  }
+
+ private:
+  std::uint64_t next() { return splitmix(state_ += 0x9E3779B97F4A7C15ull); }
+  std::uint64_t state_;
+  double spare_ = 0.0;
+  bool have_spare_ = false;
+};
+
+// Keys of the track draws (from track_seed); the index goes in the low bits.
+constexpr std::uint64_t kKeyBoundary = 1ull << 60;
+constexpr std::uint64_t kKeyStrength = 2ull << 60;
+constexpr std::uint64_t kKeySensor = 3ull << 60;
+
+double track_normal(std::uint64_t seed, std::uint64_t key, std::int64_t index) {
+  return Stream(seed, key ^ (static_cast<std::uint64_t>(index) & ((1ull << 60) - 1))).normal();
+}
+
+std::int64_t monotonic_ns() {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
+}
+
+bool finite_nonneg(double x) { return std::isfinite(x) && x >= 0.0; }
+
+}  // namespace
+
+std::string SimSource::check(const core::MotorConfig& motor, const SimConfig& cfg) {
+  auto say = [](const char* format, double a = 0.0, double b = 0.0) {
+    char buf[256];
+    std::snprintf(buf, sizeof buf, format, a, b);
+    return std::string("sim: ") + buf;
+  };
+  if (!(std::isfinite(motor.sample_rate_hz) && motor.sample_rate_hz > 0.0))
+    return say("sample_rate_hz %g must be positive", motor.sample_rate_hz);
+  if (!(std::isfinite(motor.magnet_pitch_m) && motor.magnet_pitch_m > 0.0))
+    return say("magnet_pitch_m %g must be positive", motor.magnet_pitch_m);
+  if (motor.hall.count < 1 || motor.hall.count > core::kMaxHalls)
+    return say("hall count %g must be 1..%g", motor.hall.count, core::kMaxHalls);
+  if (!motor.hall.offsets_m.empty() && motor.hall.offsets_m.size() < static_cast<std::size_t>(motor.hall.count))
+    return say("%g hall offsets given for %g sensors", static_cast<double>(motor.hall.offsets_m.size()),
+               motor.hall.count);
+  for (int i = 0; i < motor.hall.count; ++i)
+    if (!std::isfinite(motor.hall.offset_of(i))) return say("hall offset %g is not finite", i);
+  if (!std::isfinite(motor.hall.offset_v) || !std::isfinite(motor.hall.amplitude_v) ||
+      !finite_nonneg(motor.hall.noise_v))
+    return say("hall offset_v, amplitude_v and noise_v (>= 0) must be finite");
+  if (motor.adc.bits < 1 || motor.adc.bits > 30) return say("adc bits %g must be 1..30", motor.adc.bits);
+  if (!(std::isfinite(motor.adc.min_v) && std::isfinite(motor.adc.max_v) && motor.adc.min_v < motor.adc.max_v))
+    return say("adc range [%g, %g] V is empty", motor.adc.min_v, motor.adc.max_v);
+  if (!finite_nonneg(motor.accelerometer.noise_mps2) || !(motor.accelerometer.range_mps2 > 0.0) ||
+      !std::isfinite(motor.accelerometer.range_mps2))
+    return say("accelerometer noise must be >= 0 and range > 0");
+
+  const ImperfectionConfig& im = cfg.imperfections;
+  if (!finite_nonneg(im.magnet_strength_std) || !finite_nonneg(im.magnet_placement_std_m) ||
+      !finite_nonneg(im.sensor_placement_std_m) || !finite_nonneg(im.sensor_gain_std) ||
+      !finite_nonneg(im.sensor_offset_std_v))
+    return say("imperfection standard deviations must be finite and >= 0");
+  if (im.magnet_placement_std_m > 0.1 * motor.magnet_pitch_m)
+    return say("magnet_placement_std_m %g m is more than a tenth of the pitch (%g m)", im.magnet_placement_std_m,
+               motor.magnet_pitch_m);
+  if (!std::isfinite(im.hall_delay_s) || !std::isfinite(im.accel_bias_mps2) || !std::isfinite(im.accel_scale_error))
+    return say("hall_delay_s, accel_bias_mps2 and accel_scale_error must be finite");
+  if (!finite_nonneg(cfg.duration_s)) return say("duration_s %g must be >= 0 (0: unlimited)", cfg.duration_s);
+
+  std::string why;
+  if (!MotionProfile::create(cfg.profile, motor.travel_m, &why)) return "sim: " + why;
+  return {};
+}
+
+SimSource::SimSource(const core::MotorConfig& motor, const SimConfig& cfg, double start_time_s)
+    : motor_(motor), cfg_(cfg) {
+  error_ = check(motor, cfg);
+  if (error_.empty() && !(std::isfinite(start_time_s) && start_time_s >= 0.0))
+    error_ = "sim: start time must be >= 0";
+  if (!error_.empty()) return;
+  profile_ = *MotionProfile::create(cfg.profile, motor.travel_m);
+
+  wavenumber_rad_per_m_ = kTwoPi / motor.magnet_pitch_m;
+  lsb_v_ = motor.adc.lsb_v();
+  max_code_ = (1 << motor.adc.bits) - 1;
+  first_index_ = static_cast<std::uint64_t>(std::llround(start_time_s * motor.sample_rate_hz));
+  if (cfg.duration_s > 0.0)
+    max_samples_ = static_cast<std::uint64_t>(std::ceil(cfg.duration_s * motor.sample_rate_hz - 1e-6));
+
+  const ImperfectionConfig& im = cfg.imperfections;
+  sensors_.resize(static_cast<std::size_t>(motor.hall.count));
+  for (int i = 0; i < motor.hall.count; ++i) {
+    Stream draw(im.track_seed, kKeySensor ^ static_cast<std::uint64_t>(i));
+    Sensor& s = sensors_[static_cast<std::size_t>(i)];
+    // Multiplying a finite draw by a zero std gives exactly 0: no effect when disabled.
+    s.gain = 1.0 + im.sensor_gain_std * draw.normal();
+    s.offset_v = im.sensor_offset_std_v * draw.normal();
+    s.position_m = motor.hall.offset_of(i) + im.sensor_placement_std_m * draw.normal();
+  }
+  build_track();
+}
+
+void SimSource::build_track() {
+  const ImperfectionConfig& im = cfg_.imperfections;
+  ideal_track_ = im.magnet_strength_std == 0.0 && im.magnet_placement_std_m == 0.0;
+  if (ideal_track_) return;
+  // Cover every track position a sensor can face while the carriage is on the travel,
+  // plus a few periods; beyond that the track is ideal.
+  const double pitch = motor_.magnet_pitch_m;
+  double lo = 0.0, hi = motor_.travel_m;
+  double off_lo = 0.0, off_hi = 0.0;
+  for (const Sensor& s : sensors_) {
+    off_lo = std::min(off_lo, s.position_m);
+    off_hi = std::max(off_hi, s.position_m);
+  }
+  j_first_ = static_cast<std::int64_t>(std::floor((lo + off_lo) / pitch)) - 4;
+  const auto j_end = static_cast<std::int64_t>(std::ceil((hi + off_hi) / pitch)) + 4;
+  const auto periods = static_cast<std::size_t>(j_end - j_first_);
+  boundary_m_.resize(periods + 1);
+  strength_.resize(periods);
+  // Clamped to a quarter pitch so that boundaries stay ordered whatever the draw.
+  const double max_shift = 0.25 * pitch;
+  for (std::size_t n = 0; n <= periods; ++n) {
+    const std::int64_t j = j_first_ + static_cast<std::int64_t>(n);
+    double shift = im.magnet_placement_std_m * track_normal(im.track_seed, kKeyBoundary, j);
+    if (n == 0 || n == periods) shift = 0.0;  // meets the ideal track continuously
+    boundary_m_[n] = static_cast<double>(j) * pitch + std::clamp(shift, -max_shift, max_shift);
+  }
+  for (std::size_t n = 0; n < periods; ++n) {
+    const std::int64_t j = j_first_ + static_cast<std::int64_t>(n);
+    strength_[n] = std::max(0.0, 1.0 + im.magnet_strength_std * track_normal(im.track_seed, kKeyStrength, j));
+  }
+}
+
+double SimSource::track_field(double x_m) const {
+  if (ideal_track_) return std::sin(wavenumber_rad_per_m_ * x_m);
+  const double pitch = motor_.magnet_pitch_m;
+  const auto periods = static_cast<std::int64_t>(strength_.size());
+  std::int64_t n = static_cast<std::int64_t>(std::floor(x_m / pitch)) - j_first_;
+  // Boundaries move by at most a quarter pitch: one step corrects the nominal guess.
+  if (n >= 0 && n <= periods && x_m < boundary_m_[static_cast<std::size_t>(n)]) --n;
+  if (n >= 0 && n < periods && x_m >= boundary_m_[static_cast<std::size_t>(n + 1)]) ++n;
+  if (n < 0 || n >= periods) return std::sin(wavenumber_rad_per_m_ * x_m);
+
+  const auto u = static_cast<std::size_t>(n);
+  const double b0 = boundary_m_[u], b1 = boundary_m_[u + 1];
+  const double phase = kTwoPi * (x_m - b0) / (b1 - b0);
+  // Strength interpolated linearly between period centres, so the field is continuous
+  // and its envelope has no steps; neighbours outside the table have strength 1.
+  const double centre = 0.5 * (b0 + b1);
+  double s_other, c_other;
+  if (x_m < centre) {
+    s_other = u > 0 ? strength_[u - 1] : 1.0;
+    c_other = u > 0 ? 0.5 * (boundary_m_[u - 1] + b0) : b0 - 0.5 * pitch;
+  } else {
+    s_other = u + 1 < strength_.size() ? strength_[u + 1] : 1.0;
+    c_other = u + 1 < strength_.size() ? 0.5 * (b1 + boundary_m_[u + 2]) : b1 + 0.5 * pitch;
+  }
+  const double w = (x_m - centre) / (c_other - centre);
+  const double strength = strength_[u] + (s_other - strength_[u]) * w;
+  return strength * std::sin(phase);
+}
+
+double SimSource::hall_voltage_noiseless(int sensor, double carriage_x_m) const {
+  const Sensor& s = sensors_[static_cast<std::size_t>(sensor)];
+  return motor_.hall.offset_v + s.offset_v + motor_.hall.amplitude_v * s.gain * track_field(carriage_x_m + s.position_m);
+}
+
+std::int64_t SimSource::sample_time_ns(std::uint64_t k) const {
+  // 64-bit mantissa: k * 1e9 is exact below 1.8e10 samples, so t_ns is the exact
+  // rounding of k / rate and never drifts.
+  return static_cast<std::int64_t>(
+      std::llround(static_cast<long double>(k) * 1e9L / static_cast<long double>(motor_.sample_rate_hz)));
+}
+
+bool SimSource::wait_until_due(std::uint64_t n) {
+  if (n == 0) {
+    clock_start_ns_ = monotonic_ns();
+    return !stop_.load(std::memory_order_relaxed);
+  }
+  const std::int64_t due = clock_start_ns_ + sample_time_ns(n);
+  // Sleep in slices so that stop() is noticed within kSlice.
+  constexpr std::int64_t kSlice = 2000000;  // [ns]
+  for (;;) {
+    if (stop_.load(std::memory_order_relaxed)) return false;
+    const std::int64_t now = monotonic_ns();
+    if (now >= due) return true;
+    const std::int64_t until = std::min(due, now + kSlice);
+    timespec ts{};
+    ts.tv_sec = static_cast<time_t>(until / 1000000000LL);
+    ts.tv_nsec = static_cast<long>(until % 1000000000LL);
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr);  // EINTR: the loop re-checks
+  }
+}
+
+drivers::ReadStatus SimSource::read(core::RawSample& out) {
+  if (!error_.empty()) return drivers::ReadStatus::error;
+  if (stop_.load(std::memory_order_relaxed)) return drivers::ReadStatus::stopped;
+  const std::uint64_t n = samples_read_;
+  if (max_samples_ != 0 && n >= max_samples_) return drivers::ReadStatus::end_of_stream;
+  if (cfg_.realtime && !wait_until_due(n)) return drivers::ReadStatus::stopped;
+
+  const std::uint64_t k = first_index_ + n;
+  const double t_s = static_cast<double>(k) / motor_.sample_rate_hz;
+  const Kinematics now = profile_.at(t_s);
+  const ImperfectionConfig& im = cfg_.imperfections;
+  const double hall_x = im.hall_delay_s == 0.0 ? now.position_m : profile_.at(t_s - im.hall_delay_s).position_m;
+
+  Stream noise(cfg_.noise_seed, k);
+  out.t_ns = sample_time_ns(k);
+  out.seq = k;
+  out.hall_count = motor_.hall.count;
+  out.hall_valid_mask = (1u << motor_.hall.count) - 1u;
+  out.hall_v.fill(0.0);
+  for (int i = 0; i < motor_.hall.count; ++i) {
+    double v = hall_voltage_noiseless(i, hall_x) + motor_.hall.noise_v * noise.normal();
+    v = std::clamp(v, motor_.adc.min_v, motor_.adc.max_v);
+    const double code = std::clamp(std::round((v - motor_.adc.min_v) / lsb_v_), 0.0, static_cast<double>(max_code_));
+    out.hall_v[static_cast<std::size_t>(i)] = motor_.adc.min_v + code * lsb_v_;
+  }
+  const double range = motor_.accelerometer.range_mps2;
+  const double a = (1.0 + im.accel_scale_error) * now.acceleration_mps2 + im.accel_bias_mps2 +
+                   motor_.accelerometer.noise_mps2 * noise.normal();
+  out.accel_mps2 = std::clamp(a, -range, range);
+  out.accel_valid = true;
+  out.accel_base_mps2 = 0.0;
+  out.accel_base_valid = false;
+
+  truth_ = {now.position_m, now.velocity_mps, now.acceleration_mps2};
+  samples_read_ = n + 1;
+  return drivers::ReadStatus::ok;
+}
+
+std::string SimSource::describe() const {
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "sim(%s, %d Halls, %g Hz%s)", kind_name(cfg_.profile.kind), motor_.hall.count,
+                motor_.sample_rate_hz, cfg_.realtime ? "" : ", as fast as possible");
+  return buf;
+}
+
+}  // namespace ve::sim

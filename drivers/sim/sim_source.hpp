@@ -1,0 +1,94 @@
+// Simulated motor: Hall array over a (possibly imperfect) magnet track plus an
+// accelerometer on the carriage, driven by an analytic motion profile, sampled on
+// the ADC grid. Deterministic: the same seeds give the same stream bit for bit.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "core/motor.hpp"
+#include "core/sample.hpp"
+#include "sim/motion_profile.hpp"
+#include "sim/sim_config.hpp"
+#include "source.hpp"
+
+namespace ve::sim {
+
+class SimSource final : public drivers::SensorSource {
+ public:
+  /// Never throws on bad parameters: ok() is then false, last_error() says why and
+  /// read() returns ReadStatus::error. `start_time_s` starts the profile (and t_ns,
+  /// seq) at sample round(start_time_s * rate) instead of 0; duration_s counts from there.
+  SimSource(const core::MotorConfig& motor, const SimConfig& cfg, double start_time_s = 0.0);
+
+  /// What the constructor would complain about; empty if the pair is usable.
+  static std::string check(const core::MotorConfig& motor, const SimConfig& cfg);
+
+  bool ok() const { return error_.empty(); }
+
+  /// Realtime: the first call returns at once and starts the clock; sample n is
+  /// returned no earlier than n periods later on CLOCK_MONOTONIC (no drift; a late
+  /// caller catches up without sleeping). Non-realtime: returns at once.
+  drivers::ReadStatus read(core::RawSample& out) override;
+  /// Carriage state at the instant of the last sample read (not delayed).
+  const core::Truth* truth() const override { return samples_read_ > 0 ? &truth_ : nullptr; }
+  /// Wakes a sleeping read() within a few ms; every later read() returns stopped.
+  void stop() override { stop_.store(true, std::memory_order_relaxed); }
+  std::string describe() const override;
+  std::string last_error() const override { return error_; }
+
+  /// Output of Hall `sensor` with the carriage at `carriage_x_m`, with all track and
+  /// sensor imperfections but before noise, ADC clamping and quantization [V].
+  double hall_voltage_noiseless(int sensor, double carriage_x_m) const;
+  /// Normalised track field at track position `x_m` (ideal: sin(2 pi x / pitch)).
+  double track_field(double x_m) const;
+  /// Where sensor `sensor` really sits relative to the carriage (offset + placement error) [m].
+  double sensor_position_m(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].position_m; }
+
+  const MotionProfile& profile() const { return profile_; }
+  const core::MotorConfig& motor() const { return motor_; }
+  const SimConfig& config() const { return cfg_; }
+  /// Samples returned so far.
+  std::uint64_t samples_read() const { return samples_read_; }
+  /// Simulated instant of sample index k (as in RawSample::seq) [ns].
+  std::int64_t sample_time_ns(std::uint64_t k) const;
+
+ private:
+  struct Sensor {
+    double position_m = 0.0;  ///< relative to the carriage
+    double gain = 1.0;
+    double offset_v = 0.0;
+  };
+
+  void build_track();
+  bool wait_until_due(std::uint64_t n);  // false: stopped while waiting
+
+  core::MotorConfig motor_;
+  SimConfig cfg_;
+  MotionProfile profile_;
+  std::string error_;
+
+  std::vector<Sensor> sensors_;
+  double wavenumber_rad_per_m_ = 0.0;  // 2 pi / pitch
+  double lsb_v_ = 0.0;
+  int max_code_ = 0;
+
+  // Imperfect track, magnets j_first_ .. j_first_ + strength_.size() - 1; outside it
+  // (and always when both magnet tolerances are zero) the track is ideal.
+  bool ideal_track_ = true;
+  std::int64_t j_first_ = 0;
+  std::vector<double> boundary_m_;  // size + 1 entries; the first and last are nominal
+  std::vector<double> strength_;    // per period, at the period's centre
+
+  std::uint64_t first_index_ = 0;
+  std::uint64_t max_samples_ = 0;  // 0: unlimited
+  std::uint64_t samples_read_ = 0;
+  core::Truth truth_{};
+
+  std::atomic<bool> stop_{false};
+  std::int64_t clock_start_ns_ = 0;  // CLOCK_MONOTONIC at the first read
+};
+
+}  // namespace ve::sim

@@ -1,0 +1,458 @@
+// Machine/motor file loading: every error must carry the right file, line,
+// column and field, because that is what a user fixing a config file sees.
+#include <gtest/gtest.h>
+#include <stdlib.h>
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "config/embedded.hpp"
+#include "config/loader.hpp"
+
+namespace ve::config {
+namespace {
+
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() {
+    std::string tmpl = (fs::temp_directory_path() / "ve-config-test-XXXXXX").string();
+    if (!::mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
+    path_ = tmpl;
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  std::string write(const std::string& name, const std::string& text) const {
+    const fs::path p = path_ / name;
+    fs::create_directories(p.parent_path());
+    std::ofstream(p) << text;
+    return p.string();
+  }
+  std::string path(const std::string& name) const { return (path_ / name).string(); }
+
+ private:
+  fs::path path_;
+};
+
+constexpr const char* kMotor =
+    "motor: test-motor\n"
+    "magnet_pitch_m: 0.012\n"
+    "travel_m: 1.0\n";
+
+const ConfigError* find_field(const LoadResult& r, const std::string& field) {
+  for (const auto& e : r.errors)
+    if (e.field == field) return &e;
+  return nullptr;
+}
+
+/// Asserts an error at exactly file:line:col for `field`, whose message contains `text`.
+void expect_error(const LoadResult& r, const std::string& file, int line, int column, const std::string& field,
+                  const std::string& text) {
+  const ConfigError* e = find_field(r, field);
+  ASSERT_NE(e, nullptr) << "no error for field '" << field << "'; errors:\n" << to_string(r.errors);
+  EXPECT_EQ(e->file, file);
+  EXPECT_EQ(e->line, line) << e->to_string();
+  EXPECT_EQ(e->column, column) << e->to_string();
+  EXPECT_NE(e->message.find(text), std::string::npos) << e->to_string();
+}
+
+TEST(ConfigError, FormatsLikeACompiler) {
+  ConfigError e{"m.yaml", 3, 7, "axes[0].name", "must not be empty"};
+  EXPECT_EQ(e.to_string(), "m.yaml:3:7: axes[0].name: must not be empty");
+  ConfigError unreadable{"m.yaml", 0, 0, "", "cannot read machine file: No such file or directory"};
+  EXPECT_EQ(unreadable.to_string(), "m.yaml: cannot read machine file: No such file or directory");
+}
+
+TEST(ConfigLoader, MinimalMachineUsesDefaults) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"
+                              "  - name: x\n"
+                              "    motor: m.yaml\n"
+                              "  - name: y\n"
+                              "    motor: m.yaml\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  ASSERT_EQ(r.config.axes.size(), 2u);
+  EXPECT_EQ(r.config.source, path);
+  EXPECT_EQ(r.config.axes[0].id, 1u);
+  EXPECT_EQ(r.config.axes[1].id, 2u);
+  EXPECT_EQ(r.config.axes[1].motor.name, "test-motor");
+  EXPECT_EQ(r.config.axes[1].motor_file, dir.path("m.yaml"));
+  EXPECT_EQ(r.config.dds.domain, 0);
+  EXPECT_EQ(r.config.axes[0].driver.kind, DriverConfig::Kind::sim);
+  EXPECT_EQ(r.config.axes[0].homing.mode, HomingConfig::Mode::startup_position);
+}
+
+TEST(ConfigLoader, MissingKeyPointsAtParentMapping) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "machine: t\n"     // 1
+                              "axes:\n"          // 2
+                              "  - name: x\n"    // 3  <- the axis mapping starts at "name"
+                              "    id: 3\n");    // 4
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  expect_error(r, path, 3, 5, "axes[0].motor", "missing required key 'motor'");
+
+  const auto no_axes = dir.write("empty.yaml", "machine: t\n");
+  expect_error(load_machine_file(no_axes), no_axes, 1, 1, "axes", "missing required key 'axes'");
+}
+
+TEST(ConfigLoader, WrongTypePointsAtValue) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                     // 1
+                              "  - name: x\n"               // 2
+                              "    motor: m.yaml\n"         // 3
+                              "    output:\n"               // 4
+                              "      counts_per_m: fast\n"  // 5
+                              "      direction: \"1\"\n"    // 6
+                              "    driver: sim\n"           // 7
+                              "    homing: [1, 2]\n");      // 8
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 4u) << to_string(r.errors);
+  expect_error(r, path, 5, 21, "axes[0].output.counts_per_m", "expected a number, got 'fast'");
+  expect_error(r, path, 6, 18, "axes[0].output.direction", "expected an integer, got the string \"1\"");
+  expect_error(r, path, 7, 13, "axes[0].driver", "expected a mapping");
+  expect_error(r, path, 8, 13, "axes[0].homing", "expected a mapping");
+}
+
+TEST(ConfigLoader, UnknownKeyIsAnErrorWithSuggestion) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml",
+                               "motor: test-motor\n"      // 1
+                               "magnet_pich_m: 0.012\n"   // 2
+                               "hall:\n"                  // 3
+                               "  cont: 4\n"              // 4
+                               "  colour: blue\n");       // 5
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"
+                              "  - name: x\n"
+                              "    motor: m.yaml\n"
+                              "    output: {counts_per_m: 1.0e7, direktion: 1}\n");  // 4
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 4u) << to_string(r.errors);
+  expect_error(r, motor, 2, 1, "magnet_pich_m", "did you mean 'magnet_pitch_m'?");
+  expect_error(r, motor, 4, 3, "hall.cont", "did you mean 'count'?");
+  expect_error(r, motor, 5, 3, "hall.colour", "unknown key 'colour' (valid keys here:");
+  expect_error(r, path, 4, 39, "axes[0].output.direktion", "did you mean 'direction'?");
+}
+
+TEST(ConfigLoader, UnitSuffixOmittedSuggestsKeyWithUnit) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml", "motor: a\ntravel: 1.0\n");
+  const auto path = dir.write("machine.yaml", "axes: [{name: x, motor: m.yaml}]\n");
+  expect_error(load_machine_file(path), motor, 2, 1, "travel", "did you mean 'travel_m'?");
+}
+
+TEST(ConfigLoader, OutOfRangePointsAtValueAndNamesRange) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "dds:\n"                           // 1
+                              "  domain: 300\n"                  // 2
+                              "  deadline_ms: 2.5\n"             // 3
+                              "axes:\n"                          // 4
+                              "  - name: this-name-is-too-long\n"// 5
+                              "    motor: m.yaml\n"              // 6
+                              "    output: {direction: 2}\n"     // 7
+                              "    homing: {position_m: 1.5}\n");// 8
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 5u) << to_string(r.errors);
+  expect_error(r, path, 2, 11, "dds.domain", "must be in [0, 232], got 300");
+  expect_error(r, path, 3, 16, "dds.deadline_ms", "whole number of milliseconds");
+  expect_error(r, path, 5, 11, "axes[0].name", "1 to 15 characters");
+  expect_error(r, path, 7, 26, "axes[0].output.direction", "must be 1 or -1, got 2");
+  expect_error(r, path, 8, 26, "axes[0].homing.position_m", "outside the motor's travel [0, 1] m");
+}
+
+TEST(ConfigLoader, MalformedYamlReportsParserPosition) {
+  TempDir dir;
+  const auto path = dir.write("machine.yaml",
+                              "machine: t\n"        // 1
+                              "axes: [1, 2\n"       // 2
+                              "dds: {domain: 0}\n");// 3
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  EXPECT_EQ(r.errors[0].file, path);
+  EXPECT_EQ(r.errors[0].line, 2);
+  EXPECT_EQ(r.errors[0].column, 7);
+  EXPECT_EQ(r.errors[0].field, "");
+  EXPECT_NE(r.errors[0].message.find("malformed YAML"), std::string::npos) << r.errors[0].to_string();
+}
+
+TEST(ConfigLoader, ErrorInMotorFileNamesTheMotorFile) {
+  TempDir dir;
+  const auto motor = dir.write("motors/m.yaml",
+                               "motor: test-motor\n"          // 1
+                               "hall:\n"                      // 2
+                               "  count: 9\n"                 // 3
+                               "adc: {bits: 12, max_v: -1}\n" // 4
+                               "sample_rate_hz: 10\n");       // 5
+  const auto path = dir.write("machines/machine.yaml",
+                              "axes:\n"
+                              "  - name: x\n"
+                              "    motor: ../motors/m.yaml\n");
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 3u) << to_string(r.errors);
+  expect_error(r, motor, 3, 10, "hall.count", "must be in [1, 8], got 9");
+  expect_error(r, motor, 4, 24, "adc.max_v", "must be greater than min_v");
+  expect_error(r, motor, 5, 17, "sample_rate_hz", "must be in [100, 100000]");
+}
+
+TEST(ConfigLoader, AllErrorsAreReportedInPositionOrder) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml", "motor: a\nhall: {offsets_m: [0, 0.001]}\n");
+  const auto path = dir.write("machine.yaml",
+                              "machine: t\n"                      // 1
+                              "dds: {domain: -1, colour: red}\n"  // 2
+                              "axes:\n"                           // 3
+                              "  - name: x\n"                     // 4
+                              "    motor: m.yaml\n"               // 5
+                              "    driver:\n"                     // 6
+                              "      type: simulated\n"           // 7
+                              "      profile: {min_m: 0.9, max_m: 0.1}\n"  // 8
+                              "  - name: x\n"                     // 9
+                              "    id: 1\n"                       // 10
+                              "    motor: m.yaml\n");             // 11
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 8u) << to_string(r.errors);
+  expect_error(r, path, 2, 15, "dds.domain", "must be in [0, 232]");
+  expect_error(r, path, 2, 19, "dds.colour", "unknown key 'colour'");
+  expect_error(r, path, 7, 13, "axes[0].driver.type", "'simulated' is not one of sim | replay");
+  expect_error(r, path, 8, 35, "axes[0].driver.profile.max_m", "min_m (0.9) must be less than max_m (0.1)");
+  expect_error(r, path, 9, 11, "axes[1].name", "duplicate axis name 'x'");
+  expect_error(r, path, 10, 9, "axes[1].id", "duplicate id 1");
+  expect_error(r, motor, 2, 19, "hall.offsets_m", "has 2 entries but count is 4");
+  // Machine file first, then the motor file, each in position order.
+  for (std::size_t i = 1; i < r.errors.size(); ++i) {
+    const auto& a = r.errors[i - 1];
+    const auto& b = r.errors[i];
+    if (a.file == b.file) EXPECT_LE(std::pair(a.line, a.column), std::pair(b.line, b.column));
+  }
+  EXPECT_EQ(r.errors.back().file, motor);
+  // A start position of 0.5 is outside [0.9, 0.1]; not reported because min/max already are.
+}
+
+TEST(ConfigLoader, SharedBrokenMotorIsReportedOnce) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml", "motor: a\ntravel_m: 0\n");
+  const auto path = dir.write("machine.yaml", "axes:\n  - {name: x, motor: m.yaml}\n  - {name: y, motor: m.yaml}\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  expect_error(r, motor, 2, 11, "travel_m", "must be > 0, got 0");
+}
+
+TEST(ConfigLoader, UnreadableFiles) {
+  TempDir dir;
+  const auto missing = dir.path("nope.yaml");
+  const LoadResult r = load_machine_file(missing);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_EQ(r.errors[0].file, missing);
+  EXPECT_EQ(r.errors[0].line, 0);
+  EXPECT_NE(r.errors[0].message.find(std::strerror(ENOENT)), std::string::npos) << r.errors[0].to_string();
+
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                                 // 1
+                              "  - name: x\n"                           // 2
+                              "    motor: gone.yaml\n"                  // 3
+                              "    calibration: x.cal.yaml\n"           // 4
+                              "dds: {profiles_file: profiles.xml}\n");  // 5
+  const LoadResult r2 = load_machine_file(path);
+  EXPECT_EQ(r2.errors.size(), 3u) << to_string(r2.errors);
+  expect_error(r2, path, 3, 12, "axes[0].motor", std::string("cannot read motor file 'gone.yaml'"));
+  expect_error(r2, path, 4, 18, "axes[0].calibration", std::strerror(ENOENT));
+  expect_error(r2, path, 5, 22, "dds.profiles_file", "cannot read 'profiles.xml'");
+}
+
+TEST(ConfigLoader, ReferencedFilesResolveRelativeToMachineFile) {
+  TempDir dir;
+  dir.write("motors/m.yaml", kMotor);
+  dir.write("calibration/x.cal.yaml", "format: virtual-encoder-calibration\n");
+  dir.write("logs/run.csv", "t\n");
+  dir.write("deploy/profiles.xml", "<profiles/>\n");
+  const auto path = dir.write("machines/machine.yaml",
+                              "dds: {profiles_file: ../deploy/profiles.xml}\n"
+                              "axes:\n"
+                              "  - name: x\n"
+                              "    motor: ../motors/m.yaml\n"
+                              "    calibration: ../calibration/x.cal.yaml\n"
+                              "  - name: y\n"
+                              "    motor: ../motors/m.yaml\n"
+                              "    driver: {type: replay, log: ../logs/run.csv}\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  EXPECT_EQ(r.config.dds.profiles_file, dir.path("deploy/profiles.xml"));
+  EXPECT_EQ(r.config.axes[0].motor_file, dir.path("motors/m.yaml"));
+  EXPECT_EQ(r.config.axes[0].calibration_file, dir.path("calibration/x.cal.yaml"));
+  EXPECT_EQ(r.config.axes[1].driver.kind, DriverConfig::Kind::replay);
+  EXPECT_EQ(r.config.axes[1].driver.replay_path, dir.path("logs/run.csv"));
+}
+
+TEST(ConfigLoader, ReplayDriverNeedsLogAndRejectsSimKeys) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                    // 1
+                              "  - name: x\n"              // 2
+                              "    motor: m.yaml\n"        // 3
+                              "    driver:\n"              // 4
+                              "      type: replay\n"       // 5
+                              "      realtime: false\n");  // 6
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 2u) << to_string(r.errors);
+  expect_error(r, path, 5, 7, "axes[0].driver.log", "missing required key 'log'");
+  expect_error(r, path, 6, 7, "axes[0].driver.realtime", "only used with type: sim");
+}
+
+TEST(ConfigLoader, DuplicateKeyIsAnError) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "machine: a\n"                  // 1
+                              "machine: b\n"                  // 2
+                              "axes: [{name: x, motor: m.yaml}]\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  expect_error(r, path, 2, 1, "machine", "duplicate key 'machine' (first given at line 1)");
+}
+
+TEST(ConfigLoader, ProfileMustStayInsideTravel) {
+  TempDir dir;
+  dir.write("m.yaml", "motor: short\ntravel_m: 0.3\n");
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                                          // 1
+                              "  - name: x\n"                                    // 2
+                              "    motor: m.yaml\n"                              // 3
+                              "    driver:\n"                                    // 4
+                              "      profile: {start_m: 0.1, min_m: 0.05, max_m: 0.5}\n"  // 5
+                              "    homing: {position_m: 0.2}\n");                // 6
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  expect_error(r, path, 5, 50, "axes[0].driver.profile.max_m", "outside the motor's travel [0, 0.3] m");
+}
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+TEST(ConfigShipped, SimMachineLoadsClean) {
+  const std::string path = std::string(VE_SOURCE_DIR) + "/config/machines/sim.yaml";
+  const LoadResult r = load_machine_file(path);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  const MachineConfig& c = r.config;
+  EXPECT_EQ(c.name, "sim-single-axis");
+  EXPECT_EQ(c.dds.domain, 0);
+  EXPECT_EQ(c.dds.deadline_ms, 5.0);
+  EXPECT_TRUE(c.dds.profiles_file.empty());
+  ASSERT_EQ(c.axes.size(), 1u);
+  const AxisConfig& x = c.axes[0];
+  EXPECT_EQ(x.name, "x");
+  EXPECT_EQ(x.id, 1u);
+  EXPECT_TRUE(x.calibration_file.empty());
+  EXPECT_EQ(x.driver.kind, DriverConfig::Kind::sim);
+  EXPECT_TRUE(x.driver.sim.realtime);
+  EXPECT_EQ(x.driver.sim.profile.kind, sim::MotionProfileConfig::Kind::multisine);
+  EXPECT_EQ(x.driver.sim.profile.start_m, 0.5);
+  EXPECT_EQ(x.driver.sim.profile.max_velocity_mps, 2.0);
+  EXPECT_EQ(x.driver.sim.profile.max_acceleration_mps2, 10.0);
+  EXPECT_EQ(x.homing.mode, HomingConfig::Mode::startup_position);
+  EXPECT_EQ(x.homing.position_m, 0.5);
+  const core::MotorConfig& m = x.motor;
+  EXPECT_EQ(m.name, "sim-12mm");
+  EXPECT_EQ(m.magnet_pitch_m, 0.012);
+  EXPECT_EQ(m.travel_m, 1.0);
+  EXPECT_EQ(m.sample_rate_hz, 4000.0);
+  EXPECT_EQ(m.hall.count, 4);
+  EXPECT_DOUBLE_EQ(m.hall.spacing_m, m.magnet_pitch_m / 8.0);
+  EXPECT_DOUBLE_EQ(m.hall.amplitude_v, 2.5 * std::sqrt(2.0));
+  EXPECT_EQ(m.hall.noise_v, 0.0006);
+  EXPECT_EQ(m.adc.bits, 12);
+  EXPECT_EQ(m.accelerometer.noise_mps2, 0.02);
+}
+
+void expect_same_motor(const core::MotorConfig& a, const core::MotorConfig& b) {
+  EXPECT_EQ(a.name, b.name);
+  EXPECT_EQ(a.magnet_pitch_m, b.magnet_pitch_m);
+  EXPECT_EQ(a.travel_m, b.travel_m);
+  EXPECT_EQ(a.sample_rate_hz, b.sample_rate_hz);
+  EXPECT_EQ(a.hall.count, b.hall.count);
+  EXPECT_EQ(a.hall.offsets_m, b.hall.offsets_m);
+  EXPECT_EQ(a.hall.spacing_m, b.hall.spacing_m);
+  EXPECT_EQ(a.hall.offset_v, b.hall.offset_v);
+  EXPECT_EQ(a.hall.amplitude_v, b.hall.amplitude_v);
+  EXPECT_EQ(a.hall.noise_v, b.hall.noise_v);
+  EXPECT_EQ(a.hall.saturation_margin_v, b.hall.saturation_margin_v);
+  EXPECT_EQ(a.adc.bits, b.adc.bits);
+  EXPECT_EQ(a.adc.min_v, b.adc.min_v);
+  EXPECT_EQ(a.adc.max_v, b.adc.max_v);
+  EXPECT_EQ(a.accelerometer.noise_mps2, b.accelerometer.noise_mps2);
+  EXPECT_EQ(a.accelerometer.range_mps2, b.accelerometer.range_mps2);
+  EXPECT_EQ(a.filter.jerk_std_mps3, b.filter.jerk_std_mps3);
+  EXPECT_EQ(a.filter.hall_position_floor_m, b.filter.hall_position_floor_m);
+  EXPECT_EQ(a.filter.gate_sigma, b.filter.gate_sigma);
+  EXPECT_EQ(a.filter.initial_position_std_m, b.filter.initial_position_std_m);
+  EXPECT_EQ(a.filter.initial_velocity_std_mps, b.filter.initial_velocity_std_mps);
+  EXPECT_EQ(a.filter.initial_acceleration_std_mps2, b.filter.initial_acceleration_std_mps2);
+}
+
+TEST(ConfigShipped, EmbeddedDefaultEqualsOnDiskFiles) {
+  for (const char* f : {"config/machines/sim.yaml", "config/motors/sim-12mm.yaml"}) {
+    const auto it = embedded_files().find(f);
+    ASSERT_NE(it, embedded_files().end()) << f;
+    EXPECT_EQ(it->second, read_file(std::string(VE_SOURCE_DIR) + "/" + f)) << f << " is stale in the build";
+  }
+  const LoadResult e = load_embedded_default();
+  ASSERT_TRUE(e.ok()) << to_string(e.errors);
+  const LoadResult d = load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/sim.yaml");
+  ASSERT_TRUE(d.ok()) << to_string(d.errors);
+  EXPECT_EQ(e.config.source, "<embedded>/config/machines/sim.yaml");
+  EXPECT_EQ(e.config.name, d.config.name);
+  EXPECT_EQ(e.config.dds.domain, d.config.dds.domain);
+  EXPECT_EQ(e.config.dds.deadline_ms, d.config.dds.deadline_ms);
+  EXPECT_EQ(e.config.dds.profiles_file, d.config.dds.profiles_file);
+  ASSERT_EQ(e.config.axes.size(), d.config.axes.size());
+  for (std::size_t i = 0; i < e.config.axes.size(); ++i) {
+    const AxisConfig& a = e.config.axes[i];
+    const AxisConfig& b = d.config.axes[i];
+    EXPECT_EQ(a.name, b.name);
+    EXPECT_EQ(a.id, b.id);
+    EXPECT_EQ(a.motor_file, "");  // embedded: nothing on disk to open
+    expect_same_motor(a.motor, b.motor);
+    EXPECT_EQ(a.calibration_file, b.calibration_file);
+    EXPECT_EQ(a.driver.kind, b.driver.kind);
+    const auto& sa = a.driver.sim;
+    const auto& sb = b.driver.sim;
+    EXPECT_EQ(sa.realtime, sb.realtime);
+    EXPECT_EQ(sa.noise_seed, sb.noise_seed);
+    EXPECT_EQ(sa.profile.kind, sb.profile.kind);
+    EXPECT_EQ(sa.profile.start_m, sb.profile.start_m);
+    EXPECT_EQ(sa.profile.max_velocity_mps, sb.profile.max_velocity_mps);
+    EXPECT_EQ(sa.profile.max_acceleration_mps2, sb.profile.max_acceleration_mps2);
+    EXPECT_EQ(sa.profile.min_m, sb.profile.min_m);
+    EXPECT_EQ(sa.profile.max_m, sb.profile.max_m);
+    EXPECT_EQ(sa.imperfections.track_seed, sb.imperfections.track_seed);
+    EXPECT_EQ(a.output.counts_per_m, b.output.counts_per_m);
+    EXPECT_EQ(a.output.direction, b.output.direction);
+    EXPECT_EQ(a.output.preset_counts, b.output.preset_counts);
+    EXPECT_EQ(a.homing.mode, b.homing.mode);
+    EXPECT_EQ(a.homing.position_m, b.homing.position_m);
+  }
+}
+
+}  // namespace
+}  // namespace ve::config
