@@ -26,8 +26,8 @@ namespace ve::app {
 namespace {
 
 /// Loads the machine file (or the embedded default) and prints every problem.
-bool load_machine(const std::string& path, config::MachineConfig& out) {
-  auto result = path.empty() ? config::load_embedded_default() : config::load_machine_file(path);
+bool load_machine(const std::string& path, config::MachineConfig& out, const config::LoadOptions& load = {}) {
+  auto result = path.empty() ? config::load_embedded_default(load) : config::load_machine_file(path, load);
   for (const auto& e : result.errors) std::fprintf(stderr, "%s\n", e.to_string().c_str());
   if (!result.ok()) {
     std::fprintf(stderr, "%zu problem(s) in the configuration\n", result.errors.size());
@@ -135,8 +135,13 @@ int run_command(const RunOptions& options) {
     }
     if (options.wait_for_subscriber_s > 0) {
       const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(options.wait_for_subscriber_s);
-      while (state_writer.matched_readers() == 0 && std::chrono::steady_clock::now() < until)
-        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      bool stop = false;
+      while (!stop && state_writer.matched_readers() == 0 && std::chrono::steady_clock::now() < until)
+        stop = wait_for_termination(0.01);
+      if (stop) {
+        spdlog::info("termination signal before start");
+        return 0;
+      }
       spdlog::info("{} subscriber(s) matched; starting", state_writer.matched_readers());
     }
     for (auto& loop : loops) loop->thread = std::thread(axis_loop, std::ref(*loop), std::ref(state_writer));
@@ -237,7 +242,10 @@ int check_command(const CheckOptions& options) {
 
 int calibrate_command(const CalibrateOptions& options) {
   config::MachineConfig machine;
-  if (!load_machine(options.config, machine)) return 2;
+  // The calibration file is what this command writes: it need not exist yet.
+  config::LoadOptions load;
+  load.calibration_must_exist = false;
+  if (!load_machine(options.config, machine, load)) return 2;
   const config::AxisConfig* found = find_axis(machine, options.axis);
   if (found == nullptr) {
     std::fprintf(stderr, "no axis '%s' in %s\n", options.axis.c_str(), machine.source.c_str());

@@ -49,7 +49,7 @@ Pos to_pos(const YAML::Mark& m) {
 /// Quoted scalars are strings even when they look like numbers: `"5"` is not 5.
 bool is_quoted(const YAML::Node& n) { return n.Tag() == "!" || n.Tag() == "tag:yaml.org,2002:str"; }
 
-std::string describe(const YAML::Node& n) {
+std::string describe_node(const YAML::Node& n) {
   switch (n.Type()) {
     case YAML::NodeType::Null:
       return "nothing (null)";
@@ -144,8 +144,12 @@ std::string closest_key(std::string_view key, const std::vector<std::string>& kn
 }  // namespace
 
 std::string format_number(double x) {
-  char buf[64];
-  const auto r = std::to_chars(buf, buf + sizeof buf, x);
+  // Shortest text that reads back as the same double; plain decimals for the
+  // magnitudes config files use (100000, not 1e+05), exponents for the rest.
+  char buf[400];
+  const double a = std::abs(x);
+  const bool fixed = a == 0.0 || (a >= 1e-5 && a < 1e15);
+  const auto r = std::to_chars(buf, buf + sizeof buf, x, fixed ? std::chars_format::fixed : std::chars_format::general);
   return std::string(buf, r.ptr);
 }
 
@@ -222,6 +226,7 @@ const std::string& Value::path() const {
   return impl_ ? impl_->path : empty;
 }
 Document& Value::document() const { return *impl_->doc; }
+std::string Value::describe() const { return present() ? describe_node(impl_->node) : "nothing (absent)"; }
 
 void Value::error(const std::string& message) const {
   if (impl_ && impl_->doc) impl_->doc->error(impl_->pos, impl_->path, message);
@@ -233,7 +238,7 @@ namespace {
 template <class T>
 bool convert_integer(const Value& v, const YAML::Node& n, T& out, const Check<T>& check) {
   if (!n.IsScalar() || is_quoted(n)) {
-    v.error("expected an integer, got " + describe(n));
+    v.error("expected an integer, got " + describe_node(n));
     return false;
   }
   T x{};
@@ -247,7 +252,7 @@ bool convert_integer(const Value& v, const YAML::Node& n, T& out, const Check<T>
     case Parsed::bad: {
       double d;
       v.error(parse_double(n.Scalar(), d) == Parsed::ok ? "expected an integer, got " + n.Scalar()
-                                                        : "expected an integer, got " + describe(n));
+                                                        : "expected an integer, got " + describe_node(n));
       return false;
     }
   }
@@ -266,7 +271,7 @@ bool convert_integer(const Value& v, const YAML::Node& n, T& out, const Check<T>
 bool convert_double(Document& doc, const YAML::Node& n, const std::string& path, Pos pos, double& out,
                     const Check<double>& check) {
   if (!n.IsScalar() || is_quoted(n)) {
-    doc.error(pos, path, "expected a number, got " + describe(n));
+    doc.error(pos, path, "expected a number, got " + describe_node(n));
     return false;
   }
   double x = 0.0;
@@ -277,7 +282,7 @@ bool convert_double(Document& doc, const YAML::Node& n, const std::string& path,
       doc.error(pos, path, "number out of range: " + n.Scalar());
       return false;
     case Parsed::bad:
-      doc.error(pos, path, "expected a number, got " + describe(n));
+      doc.error(pos, path, "expected a number, got " + describe_node(n));
       return false;
   }
   if (check) {
@@ -297,7 +302,7 @@ bool Value::as(std::string& out, const Check<std::string>& check) const {
   if (!present()) return false;
   const YAML::Node& n = impl_->node;
   if (!n.IsScalar()) {
-    error("expected a string, got " + describe(n));
+    error("expected a string, got " + describe_node(n));
     return false;
   }
   if (check) {
@@ -326,7 +331,7 @@ bool Value::as(bool& out) const {
       return true;
     }
   }
-  error("expected true or false, got " + describe(n));
+  error("expected true or false, got " + describe_node(n));
   return false;
 }
 
@@ -359,7 +364,7 @@ bool Value::as(std::vector<double>& out, const Check<double>& check) const {
   if (!present()) return false;
   const YAML::Node& n = impl_->node;
   if (!n.IsSequence()) {
-    error("expected a sequence of numbers, got " + describe(n));
+    error("expected a sequence of numbers, got " + describe_node(n));
     return false;
   }
   // A damaged table could otherwise produce one error per element.
@@ -439,7 +444,7 @@ Map Value::as_map() const {
   if (!present() || impl_->node.IsNull()) return m;
   const YAML::Node& n = impl_->node;
   if (!n.IsMap()) {
-    error("expected a mapping (key: value pairs), got " + describe(n));
+    error("expected a mapping (key: value pairs), got " + describe_node(n));
     mi.valid = false;
     return m;
   }
@@ -447,7 +452,7 @@ Map Value::as_map() const {
     const YAML::Node& k = it->first;
     const Pos key_pos = to_pos(k.Mark());
     if (!k.IsScalar()) {
-      mi.doc->error(key_pos.line ? key_pos : mi.pos, mi.path, "keys must be plain names, got " + describe(k));
+      mi.doc->error(key_pos.line ? key_pos : mi.pos, mi.path, "keys must be plain names, got " + describe_node(k));
       continue;
     }
     const std::string& key = k.Scalar();
@@ -640,7 +645,8 @@ class Files {
   /// `rel` as written in `from`, turned into a path this source can open.
   virtual std::string resolve(const std::string& from, const std::string& rel) const = 0;
   virtual bool read(const std::string& path, std::string& text, std::string& error) const = 0;
-  virtual bool readable(const std::string& path, std::string& error) const = 0;
+  /// 0 when the file can be read, else an errno value; `error` says why.
+  virtual int readable(const std::string& path, std::string& error) const = 0;
   /// The name errors use for the file.
   virtual std::string display(const std::string& path) const = 0;
   /// The path stored in the config for other components to open.
@@ -657,27 +663,25 @@ class DiskFiles final : public Files {
     // "dir/../x" names something else when dir is a symlink; shorten the path
     // for error messages only when both spellings reach the same file.
     std::error_code ec;
-    if (normal != joined && fs::equivalent(joined, normal, ec)) return normal.string();
-    return normal == joined ? normal.string() : joined.string();
+    if (normal == joined || fs::equivalent(joined, normal, ec)) return normal.string();
+    // Neither exists: the path only appears in an error message, so make it readable.
+    if (!fs::exists(joined, ec) && !fs::exists(normal, ec)) return normal.string();
+    return joined.string();
   }
   bool read(const std::string& path, std::string& text, std::string& error) const override {
     return schema::read_text_file(path, text, error);
   }
-  bool readable(const std::string& path, std::string& error) const override {
+  int readable(const std::string& path, std::string& error) const override {
     struct stat st {};
-    if (::stat(path.c_str(), &st) != 0) {
-      error = std::strerror(errno);
-      return false;
-    }
-    if (S_ISDIR(st.st_mode)) {
-      error = std::strerror(EISDIR);
-      return false;
-    }
-    if (::access(path.c_str(), R_OK) != 0) {
-      error = std::strerror(errno);
-      return false;
-    }
-    return true;
+    int e = 0;
+    if (::stat(path.c_str(), &st) != 0)
+      e = errno;
+    else if (S_ISDIR(st.st_mode))
+      e = EISDIR;
+    else if (::access(path.c_str(), R_OK) != 0)
+      e = errno;
+    if (e != 0) error = std::strerror(e);
+    return e;
   }
   std::string display(const std::string& path) const override { return path; }
   std::string stored(const std::string& path) const override { return path; }
@@ -698,9 +702,9 @@ class EmbeddedFiles final : public Files {
     text = it->second;
     return true;
   }
-  bool readable(const std::string& path, std::string& error) const override {
+  int readable(const std::string& path, std::string& error) const override {
     std::string text;
-    return read(path, text, error);
+    return read(path, text, error) ? 0 : ENOENT;
   }
   std::string display(const std::string& path) const override { return kEmbeddedPrefix + path; }
   std::string stored(const std::string&) const override { return {}; }
@@ -787,8 +791,8 @@ struct MotorEntry {
 
 class MachineLoader {
  public:
-  MachineLoader(const Files& files, std::string path, std::vector<ConfigError>& errors)
-      : files_(files), path_(std::move(path)), errors_(errors) {}
+  MachineLoader(const Files& files, std::string path, const LoadOptions& options, std::vector<ConfigError>& errors)
+      : files_(files), path_(std::move(path)), options_(options), errors_(errors) {}
 
   void load(MachineConfig& cfg) {
     cfg.source = files_.display(path_);
@@ -804,13 +808,16 @@ class MachineLoader {
   }
 
  private:
-  /// Resolves a path written in the machine file and checks that it can be read.
-  bool referenced_file(const Value& v, std::string& resolved) {
+  /// Resolves a path written in the machine file and checks that it can be
+  /// read (or, with may_be_missing, that it is absent or readable).
+  bool referenced_file(const Value& v, std::string& resolved, bool may_be_missing = false) {
     std::string rel;
     if (!v.as(rel, non_empty())) return false;
     resolved = files_.resolve(path_, rel);
     std::string why;
-    if (!files_.readable(resolved, why)) {
+    const int e = files_.readable(resolved, why);
+    if (e == ENOENT && may_be_missing) return true;
+    if (e != 0) {
       v.error("cannot read '" + rel + "'" + (resolved != rel ? " (" + files_.display(resolved) + ")" : "") +
               ": " + why);
       return false;
@@ -857,7 +864,7 @@ class MachineLoader {
     if (!axes.present()) return;
     if (!axes.is_sequence() || axes.size() == 0) {
       axes.error(axes.is_sequence() ? std::string("must list at least one axis")
-                                    : "expected a sequence of axes, got " + std::string(axes.is_map() ? "a mapping" : "a scalar or nothing"));
+                                    : "expected a sequence of axes, got " + axes.describe());
       return;
     }
     cfg.axes.resize(axes.size());
@@ -909,7 +916,8 @@ class MachineLoader {
     const Value cal = a.value("calibration");
     if (cal.present()) {
       std::string resolved;
-      if (referenced_file(cal, resolved)) axis.calibration_file = files_.stored(resolved);
+      if (referenced_file(cal, resolved, !options_.calibration_must_exist))
+        axis.calibration_file = files_.stored(resolved);
     }
     read_driver(a.map("driver"), axis.driver, travel);
     {
@@ -999,21 +1007,26 @@ class MachineLoader {
 
   const Files& files_;
   std::string path_;
+  LoadOptions options_;
   std::vector<ConfigError>& errors_;
   std::map<std::string, MotorEntry> motors_;
 };
 
-LoadResult load(const Files& files, const std::string& path) {
+LoadResult load(const Files& files, const std::string& path, const LoadOptions& options) {
   LoadResult r;
-  MachineLoader(files, path, r.errors).load(r.config);
+  MachineLoader(files, path, options, r.errors).load(r.config);
   schema::sort_errors(r.errors);
   return r;
 }
 
 }  // namespace
 
-LoadResult load_machine_file(const std::string& path) { return load(DiskFiles{}, path); }
+LoadResult load_machine_file(const std::string& path, const LoadOptions& options) {
+  return load(DiskFiles{}, path, options);
+}
 
-LoadResult load_embedded_default() { return load(EmbeddedFiles{}, kEmbeddedMachine); }
+LoadResult load_embedded_default(const LoadOptions& options) {
+  return load(EmbeddedFiles{}, kEmbeddedMachine, options);
+}
 
 }  // namespace ve::config

@@ -41,13 +41,20 @@ struct LoadResult {
   bool ok() const { return errors.empty(); }
 };
 
+struct LoadOptions {
+  /// false: a `calibration:` file that does not exist yet is accepted (its path
+  /// is still resolved and stored), for the command that is about to create it.
+  /// A file that exists but cannot be read is an error either way.
+  bool calibration_must_exist = true;
+};
+
 /// Loads a machine file from disk. Motor, calibration, profiles and replay
 /// paths in it are relative to the machine file's directory.
-LoadResult load_machine_file(const std::string& path);
+LoadResult load_machine_file(const std::string& path, const LoadOptions& options = {});
 
 /// The shipped config/machines/sim.yaml compiled into the binary; its motor is
 /// resolved inside the embedded files too, so no file on disk is needed.
-LoadResult load_embedded_default();
+LoadResult load_embedded_default(const LoadOptions& options = {});
 
 /// Source name given to the embedded default machine file.
 inline constexpr const char* kEmbeddedPrefix = "<embedded>/";
@@ -103,6 +110,8 @@ class Value {
   Pos pos() const;
   const std::string& path() const;
   Document& document() const;
+  /// What the value is, for messages: "a mapping", "'abc'", "nothing (null)"...
+  std::string describe() const;
 
   /// Strict conversions: false (and an error recorded) on a wrong type,
   /// unparsable number or failed check; `out` is left unchanged then.
@@ -230,7 +239,6 @@ class Document {
 
   void error(Pos pos, std::string field, std::string message);
   const std::string& file() const { return file_; }
-  std::size_t error_count() const { return errors_.size(); }
 
  private:
   friend class Value;

@@ -11,6 +11,7 @@ namespace {
 // Above this position sigma the estimate is still converging (start-up,
 // re-acquisition) and is not fit for a position or velocity loop.
 constexpr double kValidPositionStdM = 50e-6;
+constexpr double kValidVelocityStdMps = 10e-3;
 }  // namespace
 
 AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
@@ -115,7 +116,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   if (status & (status::kAccelFault | (0xFFu << status::kHallFaultShift))) {
     status |= status::kSensorFault | status::kDegraded;
   }
-  if (initialised_ && out_.position_std_m < kValidPositionStdM && rejected_in_row_ < cfg_.max_rejected_in_row / 2)
+  if (initialised_ && out_.position_std_m < kValidPositionStdM && out_.velocity_std_mps < kValidVelocityStdMps &&
+      rejected_in_row_ < cfg_.max_rejected_in_row / 2)
     status |= status::kValid;
   out_.status = status;
   return out_;

@@ -146,7 +146,7 @@ TEST(ConfigLoader, UnknownKeyIsAnErrorWithSuggestion) {
   expect_error(r, motor, 2, 1, "magnet_pich_m", "did you mean 'magnet_pitch_m'?");
   expect_error(r, motor, 4, 3, "hall.cont", "did you mean 'count'?");
   expect_error(r, motor, 5, 3, "hall.colour", "unknown key 'colour' (valid keys here:");
-  expect_error(r, path, 4, 39, "axes[0].output.direktion", "did you mean 'direction'?");
+  expect_error(r, path, 4, 35, "axes[0].output.direktion", "did you mean 'direction'?");
 }
 
 TEST(ConfigLoader, UnitSuffixOmittedSuggestsKeyWithUnit) {
@@ -173,7 +173,7 @@ TEST(ConfigLoader, OutOfRangePointsAtValueAndNamesRange) {
   expect_error(r, path, 2, 11, "dds.domain", "must be in [0, 232], got 300");
   expect_error(r, path, 3, 16, "dds.deadline_ms", "whole number of milliseconds");
   expect_error(r, path, 5, 11, "axes[0].name", "1 to 15 characters");
-  expect_error(r, path, 7, 26, "axes[0].output.direction", "must be 1 or -1, got 2");
+  expect_error(r, path, 7, 25, "axes[0].output.direction", "must be 1 or -1, got 2");
   expect_error(r, path, 8, 26, "axes[0].homing.position_m", "outside the motor's travel [0, 1] m");
 }
 
@@ -181,15 +181,24 @@ TEST(ConfigLoader, MalformedYamlReportsParserPosition) {
   TempDir dir;
   const auto path = dir.write("machine.yaml",
                               "machine: t\n"        // 1
-                              "axes: [1, 2\n"       // 2
-                              "dds: {domain: 0}\n");// 3
+                              "axes:\n"             // 2
+                              "  - name: x: y\n");  // 3  <- second ':' at column 12
   const LoadResult r = load_machine_file(path);
   ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
   EXPECT_EQ(r.errors[0].file, path);
-  EXPECT_EQ(r.errors[0].line, 2);
-  EXPECT_EQ(r.errors[0].column, 7);
+  EXPECT_EQ(r.errors[0].line, 3);
+  EXPECT_EQ(r.errors[0].column, 12);
   EXPECT_EQ(r.errors[0].field, "");
-  EXPECT_NE(r.errors[0].message.find("malformed YAML"), std::string::npos) << r.errors[0].to_string();
+  EXPECT_EQ(r.errors[0].message, "malformed YAML: illegal map value");
+
+  // An unclosed flow sequence is noticed where the next key starts.
+  const auto unclosed = dir.write("unclosed.yaml",
+                                  "machine: t\n"          // 1
+                                  "axes: [1, 2\n"         // 2
+                                  "dds: {domain: 0}\n");  // 3
+  const LoadResult u = load_machine_file(unclosed);
+  ASSERT_EQ(u.errors.size(), 1u) << to_string(u.errors);
+  EXPECT_EQ(u.errors[0].to_string(), unclosed + ":3:4: malformed YAML: end of sequence flow not found");
 }
 
 TEST(ConfigLoader, ErrorInMotorFileNamesTheMotorFile) {
@@ -227,11 +236,11 @@ TEST(ConfigLoader, AllErrorsAreReportedInPositionOrder) {
                               "    id: 1\n"                       // 10
                               "    motor: m.yaml\n");             // 11
   const LoadResult r = load_machine_file(path);
-  ASSERT_EQ(r.errors.size(), 8u) << to_string(r.errors);
+  ASSERT_EQ(r.errors.size(), 7u) << to_string(r.errors);
   expect_error(r, path, 2, 15, "dds.domain", "must be in [0, 232]");
   expect_error(r, path, 2, 19, "dds.colour", "unknown key 'colour'");
   expect_error(r, path, 7, 13, "axes[0].driver.type", "'simulated' is not one of sim | replay");
-  expect_error(r, path, 8, 35, "axes[0].driver.profile.max_m", "min_m (0.9) must be less than max_m (0.1)");
+  expect_error(r, path, 8, 36, "axes[0].driver.profile.max_m", "min_m (0.9) must be less than max_m (0.1)");
   expect_error(r, path, 9, 11, "axes[1].name", "duplicate axis name 'x'");
   expect_error(r, path, 10, 9, "axes[1].id", "duplicate id 1");
   expect_error(r, motor, 2, 19, "hall.offsets_m", "has 2 entries but count is 4");
@@ -239,7 +248,9 @@ TEST(ConfigLoader, AllErrorsAreReportedInPositionOrder) {
   for (std::size_t i = 1; i < r.errors.size(); ++i) {
     const auto& a = r.errors[i - 1];
     const auto& b = r.errors[i];
-    if (a.file == b.file) EXPECT_LE(std::pair(a.line, a.column), std::pair(b.line, b.column));
+    if (a.file == b.file) {
+      EXPECT_LE(std::pair(a.line, a.column), std::pair(b.line, b.column));
+    }
   }
   EXPECT_EQ(r.errors.back().file, motor);
   // A start position of 0.5 is outside [0.9, 0.1]; not reported because min/max already are.
@@ -274,6 +285,25 @@ TEST(ConfigLoader, UnreadableFiles) {
   expect_error(r2, path, 3, 12, "axes[0].motor", std::string("cannot read motor file 'gone.yaml'"));
   expect_error(r2, path, 4, 18, "axes[0].calibration", std::strerror(ENOENT));
   expect_error(r2, path, 5, 22, "dds.profiles_file", "cannot read 'profiles.xml'");
+}
+
+TEST(ConfigLoader, CalibrationMayBeMissingWhenAboutToBeCreated) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"
+                              "  - name: x\n"
+                              "    motor: m.yaml\n"
+                              "    calibration: cal/x.cal.yaml\n");
+  EXPECT_FALSE(load_machine_file(path).ok());
+  LoadOptions options;
+  options.calibration_must_exist = false;
+  const LoadResult r = load_machine_file(path, options);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  EXPECT_EQ(r.config.axes[0].calibration_file, dir.path("cal/x.cal.yaml"));
+  // Present but unreadable (here: a directory) is still an error.
+  std::filesystem::create_directories(dir.path("cal/x.cal.yaml"));
+  expect_error(load_machine_file(path, options), path, 4, 18, "axes[0].calibration", "Is a directory");
 }
 
 TEST(ConfigLoader, ReferencedFilesResolveRelativeToMachineFile) {
@@ -340,7 +370,7 @@ TEST(ConfigLoader, ProfileMustStayInsideTravel) {
                               "    homing: {position_m: 0.2}\n");                // 6
   const LoadResult r = load_machine_file(path);
   EXPECT_EQ(r.errors.size(), 1u) << to_string(r.errors);
-  expect_error(r, path, 5, 50, "axes[0].driver.profile.max_m", "outside the motor's travel [0, 0.3] m");
+  expect_error(r, path, 5, 51, "axes[0].driver.profile.max_m", "outside the motor's travel [0, 0.3] m");
 }
 
 std::string read_file(const std::string& path) {

@@ -147,7 +147,9 @@ TEST(PipelineTiming, BridgesDroppedSamplesByPrediction) {
     ASSERT_EQ(sim.read(s), ve::drivers::ReadStatus::ok);
     if (i >= 1000 && i < 1010) continue;  // ten samples lost
     const auto& est = pipeline.step(s);
-    if (i == 1010) EXPECT_EQ(est.samples_skipped, 10u);
+    if (i == 1010) {
+      EXPECT_EQ(est.samples_skipped, 10u);
+    }
   }
   EXPECT_NEAR(pipeline.last().position_m, sim.truth()->position_m, 3e-6);
   EXPECT_TRUE(pipeline.last().status & ve::core::status::kValid);

@@ -1,0 +1,146 @@
+// The command line as a user meets it: `check` on a broken machine file,
+// `calibrate` -> `check` -> `run` with the calibration it wrote, refusal of a
+// damaged calibration, and the default (embedded) machine.
+#include <gtest/gtest.h>
+
+#include <fcntl.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+
+#include "app/dds_io.hpp"
+#include "core/status.hpp"
+#include "process.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+using ve::test::ChildProcess;
+using ve::test::wait_until;
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    char tmpl[] = "/tmp/ve_cli_XXXXXX";
+    path = mkdtemp(tmpl);
+  }
+  ~TempDir() { fs::remove_all(path); }
+};
+
+void write(const fs::path& p, const std::string& text) {
+  std::ofstream out(p);
+  out << text;
+}
+
+std::string motor_path() { return std::string(VE_SOURCE_DIR) + "/config/motors/sim-12mm.yaml"; }
+
+/// Runs the binary to completion; returns the exit code and fills `output`.
+int run_cli(const std::vector<std::string>& args, std::string& output, const fs::path& log) {
+  std::vector<std::string> argv{VE_BINARY};
+  argv.insert(argv.end(), args.begin(), args.end());
+  ChildProcess p(argv, log.string());
+  const int code = p.wait_exit(120s);
+  output = p.log();
+  return code;
+}
+
+TEST(Cli, CheckReportsEveryProblemWithFileLineColumnAndFails) {
+  TempDir dir;
+  const fs::path machine = dir.path / "bad.yaml";
+  write(machine,
+        "machine: broken\n"                        // 1
+        "dds:\n"                                   // 2
+        "  domain: 7\n"                            // 3
+        "axes:\n"                                  // 4
+        "  - name: x\n"                            // 5
+        "    motor: " + motor_path() + "\n"        // 6
+        "    drivr: {type: sim}\n"                 // 7
+        "    output: {direction: 2}\n");           // 8
+  std::string out;
+  EXPECT_EQ(run_cli({"check", "--config", machine.string()}, out, dir.path / "check.log"), 1) << out;
+  EXPECT_NE(out.find(machine.string() + ":7:5: axes[0].drivr"), std::string::npos) << out;
+  EXPECT_NE(out.find(machine.string() + ":8:25: axes[0].output.direction"), std::string::npos) << out;
+  EXPECT_NE(out.find("2 problem(s)"), std::string::npos) << out;
+}
+
+TEST(Cli, CheckAcceptsTheEmbeddedDefault) {
+  TempDir dir;
+  std::string out;
+  EXPECT_EQ(run_cli({"check"}, out, dir.path / "check.log"), 0) << out;
+  EXPECT_NE(out.find("OK: machine 'sim-single-axis'"), std::string::npos) << out;
+}
+
+TEST(Cli, CalibrateThenCheckThenRunPublishesCalibratedPositions) {
+  TempDir dir;
+  const fs::path machine = dir.path / "machine.yaml";
+  write(machine,
+        "machine: calibrated\n"
+        "axes:\n"
+        "  - name: x\n"
+        "    motor: " + motor_path() + "\n"
+        "    calibration: cal/x.cal.yaml\n"
+        "    driver:\n"
+        "      type: sim\n"
+        "      profile: {type: standstill, start_m: 0.6123}\n"
+        "    homing: {mode: startup_position, position_m: 0.61}\n");
+
+  std::string out;
+  // Before calibrating, check names the missing file.
+  EXPECT_EQ(run_cli({"check", "--config", machine.string()}, out, dir.path / "c0.log"), 1) << out;
+  EXPECT_NE(out.find("x.cal.yaml"), std::string::npos) << out;
+
+  ASSERT_EQ(run_cli({"calibrate", "--config", machine.string()}, out, dir.path / "cal.log"), 0) << out;
+  ASSERT_TRUE(fs::exists(dir.path / "cal" / "x.cal.yaml")) << out;
+  EXPECT_EQ(run_cli({"check", "--config", machine.string()}, out, dir.path / "c1.log"), 0) << out;
+  EXPECT_NE(out.find("calibration "), std::string::npos) << out;
+
+  // The run publishes CALIBRATED samples at the right place.
+  const int domain = 73;
+  ve::app::DdsOptions o;
+  o.domain = domain;
+  std::string error;
+  auto ctx = ve::app::DdsContext::create(o, error);
+  ASSERT_TRUE(ctx) << error;
+  std::mutex m;
+  std::vector<ve::dds::EncoderState> got;
+  got.reserve(100000);
+  {
+    ve::app::StateReader reader(*ctx, 0.0, [&](const ve::dds::EncoderState& s) {
+      std::lock_guard<std::mutex> lock(m);
+      got.push_back(s);
+    });
+    ChildProcess run({VE_BINARY, "run", "--config", machine.string(), "--domain", std::to_string(domain), "--duration",
+                      "1.5", "--wait-for-subscriber", "10"},
+                     (dir.path / "run.log").string());
+    EXPECT_EQ(run.wait_exit(30s), 0) << run.log();
+  }
+  ctx.reset();
+  double sum_sq = 0;
+  int n = 0;
+  for (const auto& s : got) {
+    if (s.sequence_number() < 400) continue;
+    EXPECT_TRUE(s.status() & ve::core::status::kCalibrated) << ve::core::status_to_string(s.status());
+    EXPECT_TRUE(s.status() & ve::core::status::kValid) << ve::core::status_to_string(s.status());
+    sum_sq += (s.position_m() - 0.6123) * (s.position_m() - 0.6123);
+    ++n;
+  }
+  ASSERT_GT(n, 1000);
+  const double rms_um = std::sqrt(sum_sq / n) * 1e6;
+  std::printf("[ figures  ] standstill on the calibrated table via DDS: %.3f um RMS over %d samples\n", rms_um, n);
+  EXPECT_LT(rms_um, 5.0);
+
+  // A damaged calibration is refused by check and by run, and named.
+  {
+    std::fstream f(dir.path / "cal" / "x.cal.yaml", std::ios::in | std::ios::out);
+    f.seekp(-40, std::ios::end);
+    f << "9";
+  }
+  EXPECT_EQ(run_cli({"check", "--config", machine.string()}, out, dir.path / "c2.log"), 1) << out;
+  EXPECT_NE(out.find("x.cal.yaml"), std::string::npos) << out;
+  EXPECT_NE(run_cli({"run", "--config", machine.string(), "--duration", "1"}, out, dir.path / "r2.log"), 0) << out;
+}
+
+}  // namespace

@@ -1,0 +1,306 @@
+// Calibration files: exact round trip, refusal of damaged or foreign files, and
+// atomic replacement that never leaves a half-written calibration behind.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <stdlib.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "config/calibration_file.hpp"
+#include "core/hall_table.hpp"
+
+namespace ve::config {
+namespace {
+
+namespace fs = std::filesystem;
+
+class CalibrationFile : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string tmpl = (fs::temp_directory_path() / "ve-cal-test-XXXXXX").string();
+    ASSERT_NE(::mkdtemp(tmpl.data()), nullptr);
+    dir_ = tmpl;
+    cal_.info.motor = motor_.name;
+    cal_.info.hall_count = motor_.hall.count;
+    cal_.info.magnet_pitch_m = motor_.magnet_pitch_m;
+    cal_.info.method = "reference";
+    cal_.info.created_utc = "2026-11-22T03:00:00Z";
+    cal_.table = core::nominal_hall_table(motor_);
+    cal_.info.id = core::table_checksum(cal_.table);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::permissions(dir_, fs::perms::owner_all, fs::perm_options::add, ec);
+    fs::remove_all(dir_, ec);
+  }
+
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  std::string write_good(const std::string& name = "x.cal.yaml") {
+    std::string error;
+    const std::string p = path(name);
+    EXPECT_TRUE(write_calibration_file_atomic(p, cal_, error)) << error;
+    return p;
+  }
+
+  static std::string slurp(const std::string& p) {
+    std::ifstream in(p, std::ios::binary);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }
+  static void spit(const std::string& p, const std::string& text) { std::ofstream(p, std::ios::binary) << text; }
+
+  /// Names in the directory other than `keep`: leftover temp files.
+  std::vector<std::string> others(const std::string& keep) const {
+    std::vector<std::string> out;
+    for (const auto& e : fs::directory_iterator(dir_))
+      if (e.path().filename() != keep) out.push_back(e.path().filename().string());
+    return out;
+  }
+
+  static ConfigError only_error(const CalibrationLoad& r) {
+    EXPECT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+    return r.errors.empty() ? ConfigError{} : r.errors.front();
+  }
+
+  fs::path dir_;
+  core::MotorConfig motor_;
+  core::Calibration cal_;
+};
+
+TEST_F(CalibrationFile, RoundTripIsExactToOneMicrovolt) {
+  const std::string p = write_good();
+  const std::string text = slurp(p);
+  EXPECT_EQ(text.rfind("# ", 0), 0u);
+  EXPECT_NE(text.find("\nformat: virtual-encoder-calibration\nversion: 1\nmotor: sim-12mm\nhall_count: 4\n"),
+            std::string::npos);
+  EXPECT_NE(text.find("\nid: \"" + cal_.info.id + "\""), std::string::npos);
+
+  const auto t0 = std::chrono::steady_clock::now();
+  const CalibrationLoad r = load_calibration_file(p, motor_);
+  const double load_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  std::printf("[ info     ] loading a %d-point x %d-sensor calibration (%zu bytes) took %.3f s\n",
+              cal_.table.points, cal_.table.sensors, text.size(), load_s);
+  RecordProperty("load_seconds", std::to_string(load_s));
+  EXPECT_LT(load_s, 5.0);  // a guard against pathological slowness, not a benchmark (~0.25 s measured)
+
+  const core::Calibration& c = r.calibration;
+  EXPECT_EQ(c.info.motor, cal_.info.motor);
+  EXPECT_EQ(c.info.hall_count, cal_.info.hall_count);
+  EXPECT_EQ(c.info.magnet_pitch_m, cal_.info.magnet_pitch_m);
+  EXPECT_EQ(c.info.method, "reference");
+  EXPECT_EQ(c.info.created_utc, "2026-11-22T03:00:00Z");
+  EXPECT_EQ(c.info.id, cal_.info.id);
+  EXPECT_EQ(core::table_checksum(c.table), cal_.info.id);
+  EXPECT_EQ(c.table.start_m, cal_.table.start_m);  // bit-identical grid
+  EXPECT_EQ(c.table.step_m, cal_.table.step_m);
+  EXPECT_EQ(c.table.points, cal_.table.points);
+  EXPECT_EQ(c.table.sensors, cal_.table.sensors);
+  ASSERT_EQ(c.table.v.size(), cal_.table.v.size());
+  double worst = 0.0;
+  for (std::size_t i = 0; i < c.table.v.size(); ++i) worst = std::max(worst, std::abs(c.table.v[i] - cal_.table.v[i]));
+  EXPECT_LE(worst, 0.5e-6 + 1e-12);
+  EXPECT_TRUE(others("x.cal.yaml").empty());
+}
+
+TEST_F(CalibrationFile, RoundTripOfAnOddTable) {
+  // Negative values, a non-zero start and a grid that is not a power of two.
+  cal_.table.start_m = -0.0123456789;
+  cal_.table.step_m = 1.0 / 3.0 * 1e-4;
+  for (std::size_t i = 0; i < cal_.table.v.size(); i += 7) cal_.table.v[i] = -cal_.table.v[i] + 1e-7 * i;
+  cal_.info.id.clear();
+  cal_.info.motor = "motor with spaces: \"quoted\"";
+  core::MotorConfig m = motor_;
+  m.name = cal_.info.motor;
+  const std::string p = write_good();
+  const CalibrationLoad r = load_calibration_file(p, m);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  EXPECT_EQ(r.calibration.info.motor, m.name);
+  EXPECT_EQ(r.calibration.table.start_m, cal_.table.start_m);
+  EXPECT_EQ(r.calibration.table.step_m, cal_.table.step_m);
+  EXPECT_EQ(r.calibration.info.id, core::table_checksum(cal_.table));
+}
+
+TEST_F(CalibrationFile, RefusesTruncatedFile) {
+  const std::string p = write_good();
+  const std::string text = slurp(p);
+  spit(p, text.substr(0, text.size() / 2));  // cut inside a row
+  const CalibrationLoad r = load_calibration_file(p, motor_);
+  const ConfigError e = only_error(r);
+  EXPECT_EQ(e.file, p);
+  EXPECT_GT(e.line, 0);
+  EXPECT_GT(e.column, 0);
+  EXPECT_EQ(e.message.rfind("corrupt: ", 0), 0u) << e.to_string();
+
+  // Cut at the end of the second row: the YAML is valid but the table is short.
+  const std::size_t row3 = text.find("\n    - [", text.find("\n    - [", text.find("\n    - [") + 1) + 1);
+  ASSERT_NE(row3, std::string::npos);
+  spit(p, text.substr(0, row3 + 1));
+  const CalibrationLoad r2 = load_calibration_file(p, motor_);
+  const ConfigError e2 = only_error(r2);
+  EXPECT_EQ(e2.field, "table.sensors");
+  EXPECT_EQ(e2.line, 16);  // the first row: the sensors sequence starts there
+  EXPECT_EQ(e2.column, 5);
+  EXPECT_EQ(e2.message, "corrupt: table has 2 sensor rows but hall_count is 4");
+}
+
+TEST_F(CalibrationFile, RefusesChangedValue) {
+  const std::string p = write_good();
+  std::string text = slurp(p);
+  const std::size_t at = text.find("2.", text.find("sensors:"));
+  ASSERT_NE(at, std::string::npos);
+  text[at + 7] = text[at + 7] == '9' ? '8' : '9';  // one microvolt digit of one value
+  spit(p, text);
+  const CalibrationLoad r = load_calibration_file(p, motor_);
+  const ConfigError e = only_error(r);
+  EXPECT_EQ(e.field, "id");
+  EXPECT_EQ(e.line, 10);
+  EXPECT_EQ(e.column, 5);
+  EXPECT_EQ(e.message.rfind("corrupt: the table's checksum is ", 0), 0u) << e.to_string();
+}
+
+TEST_F(CalibrationFile, RefusesAnotherMotorsFile) {
+  const std::string p = write_good();
+  core::MotorConfig other = motor_;
+  other.name = "lab-16mm";
+  const ConfigError e = only_error(load_calibration_file(p, other));
+  EXPECT_EQ(e.to_string(), p + ":5:8: motor: other motor: made for motor 'sim-12mm', this axis has motor 'lab-16mm'");
+
+  other = motor_;
+  other.magnet_pitch_m = 0.016;
+  const ConfigError e2 = only_error(load_calibration_file(p, other));
+  EXPECT_EQ(e2.field, "magnet_pitch_m");
+  EXPECT_EQ(e2.line, 7);
+  EXPECT_EQ(e2.message.rfind("other motor: ", 0), 0u) << e2.to_string();
+}
+
+TEST_F(CalibrationFile, RefusesDifferentHallCount) {
+  const std::string p = write_good();
+  core::MotorConfig three = motor_;
+  three.hall.count = 3;
+  const ConfigError e = only_error(load_calibration_file(p, three));
+  EXPECT_EQ(e.to_string(),
+            p + ":6:13: hall_count: incompatible sensor layout: made for 4 Hall sensors, the motor has 3");
+}
+
+TEST_F(CalibrationFile, RefusesOtherVersionAndOtherFiles) {
+  const std::string p = write_good();
+  std::string text = slurp(p);
+  text.replace(text.find("version: 1"), 10, "version: 2");
+  spit(p, text);
+  const ConfigError e = only_error(load_calibration_file(p, motor_));
+  EXPECT_EQ(e.to_string(), p + ":4:10: version: unsupported version: version 2; this program reads version 1");
+
+  const std::string machine = path("machine.yaml");
+  spit(machine, "machine: x\naxes: []\n");
+  const ConfigError e2 = only_error(load_calibration_file(machine, motor_));
+  EXPECT_EQ(e2.to_string(), machine + ":1:1: format: corrupt: missing required key 'format'");
+
+  spit(machine, "format: something-else\n");
+  const ConfigError e3 = only_error(load_calibration_file(machine, motor_));
+  EXPECT_EQ(e3.message.rfind("not a calibration file: ", 0), 0u) << e3.to_string();
+
+  const ConfigError e4 = only_error(load_calibration_file(path("missing.cal.yaml"), motor_));
+  EXPECT_EQ(e4.line, 0);
+  EXPECT_NE(e4.message.find("No such file or directory"), std::string::npos);
+}
+
+TEST_F(CalibrationFile, WriteRefusesInconsistentCalibration) {
+  std::string error;
+  core::Calibration bad = cal_;
+  bad.info.id = "0000000000000000";
+  EXPECT_FALSE(write_calibration_file_atomic(path("x.cal.yaml"), bad, error));
+  EXPECT_NE(error.find("not the checksum"), std::string::npos) << error;
+  bad = cal_;
+  bad.info.hall_count = 3;
+  EXPECT_FALSE(write_calibration_file_atomic(path("x.cal.yaml"), bad, error));
+  bad = cal_;
+  bad.table.v.pop_back();
+  EXPECT_FALSE(write_calibration_file_atomic(path("x.cal.yaml"), bad, error));
+  EXPECT_TRUE(others("").empty());
+}
+
+TEST_F(CalibrationFile, AtomicWriteKeepsOldFileWhenTargetIsADirectory) {
+  const std::string target = path("target");
+  fs::create_directory(target);
+  spit(target + "/keep", "old");
+  std::string error;
+  EXPECT_FALSE(write_calibration_file_atomic(target, cal_, error));
+  EXPECT_NE(error.find("Is a directory"), std::string::npos) << error;
+  EXPECT_TRUE(fs::is_directory(target));
+  EXPECT_EQ(slurp(target + "/keep"), "old");
+  EXPECT_EQ(others("target"), std::vector<std::string>{}) << "temp file left behind";
+}
+
+TEST_F(CalibrationFile, AtomicWriteKeepsOldFileWhenDirectoryIsUnwritable) {
+  const std::string p = write_good();
+  const std::string before = slurp(p);
+  core::Calibration changed = cal_;
+  changed.table.v[0] += 0.1;
+  changed.info.id.clear();
+  ASSERT_EQ(::chmod(dir_.c_str(), 0555), 0);
+  // Root ignores directory permissions, so the write runs in a child that
+  // gives them up first.
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    if (::geteuid() == 0 && ::setuid(65534) != 0) ::_exit(3);
+    std::string error;
+    const bool ok = write_calibration_file_atomic(p, changed, error);
+    ::_exit(ok ? 1 : (error.find("Permission denied") != std::string::npos ? 0 : 2));
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+  ::chmod(dir_.c_str(), 0755);
+  ASSERT_TRUE(WIFEXITED(status));
+  if (WEXITSTATUS(status) == 3) GTEST_SKIP() << "running as root without CAP_SETUID: cannot make a directory unwritable";
+  EXPECT_EQ(WEXITSTATUS(status), 0) << "1: write succeeded, 2: failed for another reason than EACCES";
+  EXPECT_EQ(slurp(p), before);
+  EXPECT_TRUE(others("x.cal.yaml").empty());
+}
+
+TEST_F(CalibrationFile, AtomicWriteKeepsOldFileWhenWritingFails) {
+  const std::string p = write_good();
+  const std::string before = slurp(p);
+  core::Calibration changed = cal_;
+  changed.table.v[0] += 0.1;
+  changed.info.id.clear();
+  // A file size limit makes write() fail with EFBIG part way through the new file.
+  struct rlimit old {};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old), 0);
+  void (*old_handler)(int) = ::signal(SIGXFSZ, SIG_IGN);
+  struct rlimit small = old;
+  small.rlim_cur = 4096;
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &small), 0);
+  std::string error;
+  const bool ok = write_calibration_file_atomic(p, changed, error);
+  ::setrlimit(RLIMIT_FSIZE, &old);
+  ::signal(SIGXFSZ, old_handler);
+  EXPECT_FALSE(ok);
+  EXPECT_NE(error.find("cannot write"), std::string::npos) << error;
+  EXPECT_EQ(slurp(p), before);
+  EXPECT_TRUE(others("x.cal.yaml").empty());
+}
+
+TEST_F(CalibrationFile, AtomicWriteKeepsPermissionsOfReplacedFile) {
+  const std::string p = write_good();
+  ASSERT_EQ(::chmod(p.c_str(), 0640), 0);
+  const std::string p2 = write_good();
+  struct stat st {};
+  ASSERT_EQ(::stat(p2.c_str(), &st), 0);
+  EXPECT_EQ(st.st_mode & 0777, 0640u);
+}
+
+}  // namespace
+}  // namespace ve::config
