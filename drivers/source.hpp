@@ -31,6 +31,14 @@ class SensorSource {
   /// logs with truth columns); nullptr otherwise.
   virtual const core::Truth* truth() const { return nullptr; }
 
+  /// Reference ruler position for the sample last read, where one is available
+  /// (calibration with a reference: the simulator's exact position, a log's
+  /// ref_position_m column). False when there is none for this sample.
+  virtual bool reference_position(double& position_m) const {
+    (void)position_m;
+    return false;
+  }
+
   /// Makes a blocked read() return ReadStatus::stopped. Safe from another thread.
   virtual void stop() {}
 

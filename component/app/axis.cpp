@@ -51,9 +51,11 @@ std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axi
   return nullptr;
 }
 
-core::PipelineConfig pipeline_config(const config::AxisConfig& axis, bool calibrated) {
+core::PipelineConfig pipeline_config(const config::AxisConfig& axis, const core::Calibration& calibration,
+                                     bool calibrated) {
   core::PipelineConfig p;
   p.motor = axis.motor;
+  p.sensors = calibration.model;
   p.calibrated = calibrated;
   p.start_position_known = axis.homing.mode == config::HomingConfig::Mode::startup_position;
   p.start_position_m = axis.homing.position_m;
@@ -65,7 +67,8 @@ bool build_axis(const config::AxisConfig& axis, SourceTiming timing, AxisSetup& 
   if (!load_axis_calibration(axis, out.calibration, out.calibrated, error)) return false;
   out.source = make_source(axis, timing, error);
   if (!out.source) return false;
-  out.pipeline = std::make_unique<core::AxisPipeline>(pipeline_config(axis, out.calibrated), out.calibration.table);
+  out.pipeline = std::make_unique<core::AxisPipeline>(pipeline_config(axis, out.calibration, out.calibrated),
+                                                        out.calibration.table);
   return true;
 }
 

@@ -34,7 +34,8 @@ bool load_axis_calibration(const config::AxisConfig& axis, core::Calibration& ou
 std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axis, SourceTiming timing,
                                                    std::string& error);
 
-core::PipelineConfig pipeline_config(const config::AxisConfig& axis, bool calibrated);
+core::PipelineConfig pipeline_config(const config::AxisConfig& axis, const core::Calibration& calibration,
+                                     bool calibrated);
 
 /// Everything for one axis; nullptr-free on success.
 bool build_axis(const config::AxisConfig& axis, SourceTiming timing, AxisSetup& out, std::string& error);

@@ -16,9 +16,11 @@
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "core/status.hpp"
-#include "core/table_builder.hpp"
+#include "core/identification.hpp"
 #include "dds_io.hpp"
+#include "reports.hpp"
 #include "signals.hpp"
+#include "sim/calibration_run.hpp"
 #include "sim/sim_source.hpp"
 
 namespace ve::app {
@@ -251,7 +253,7 @@ int calibrate_command(const CalibrateOptions& options) {
     std::fprintf(stderr, "no axis '%s' in %s\n", options.axis.c_str(), machine.source.c_str());
     return 2;
   }
-  config::AxisConfig axis = *found;
+  const config::AxisConfig& axis = *found;
   if (axis.driver.kind != config::DriverConfig::Kind::sim) {
     std::fprintf(stderr, "axis '%s': calibration needs the simulator driver (it uses its reference position)\n",
                  axis.name.c_str());
@@ -261,56 +263,36 @@ int calibrate_command(const CalibrateOptions& options) {
   if (out.empty()) out = axis.calibration_file;
   if (out.empty()) out = "calibration/" + axis.motor.name + ".cal.yaml";
 
-  // One slow sweep over the whole travel and back; the simulator's exact
-  // position plays the reference ruler.
-  auto& profile = axis.driver.sim.profile;
-  profile.kind = sim::MotionProfileConfig::Kind::shuttle;
-  profile.min_m = 0.0;
-  profile.max_m = axis.motor.travel_m;
-  profile.start_m = 0.0;
-  profile.max_velocity_mps = options.sweep_speed_mps;
-  profile.max_acceleration_mps2 = options.sweep_acceleration_mps2;
-  const double sweep_s = 2.0 * (axis.motor.travel_m / options.sweep_speed_mps +
-                                options.sweep_speed_mps / options.sweep_acceleration_mps2);
-  std::string error;
-  auto source = make_source(axis, SourceTiming::as_fast_as_possible, error);
-  if (!source) {
-    std::fprintf(stderr, "axis '%s': %s\n", axis.name.c_str(), error.c_str());
-    return 2;
-  }
-  core::TableBuilder builder(axis.motor);
-  core::RawSample sample;
   const bool tty = isatty(STDERR_FILENO);
   int last_percent = -1;
-  std::uint64_t n = 0;
-  for (;;) {
-    if (source->read(sample) != drivers::ReadStatus::ok) break;
-    const core::Truth* truth = source->truth();
-    if (truth == nullptr) {
-      std::fprintf(stderr, "the source gives no reference position\n");
-      return 2;
-    }
-    const double t = static_cast<double>(sample.t_ns) * 1e-9;
-    if (t > sweep_s) break;
-    builder.add(truth->position_m, sample);
-    ++n;
-    const int percent = static_cast<int>(100.0 * t / sweep_s);
-    if (tty && percent != last_percent) {
-      last_percent = percent;
-      std::fprintf(stderr, "\rcalibrating '%s' [%-50s] %3d%%", axis.name.c_str(),
-                   std::string(static_cast<std::size_t>(percent / 2), '#').c_str(), percent);
-    }
+  auto progress = [&](const char* phase, double fraction) {
+    const int percent = static_cast<int>(100.0 * fraction);
+    if (!tty || percent == last_percent) return;
+    last_percent = percent;
+    std::fprintf(stderr, "\r%-10s [%-50s] %3d%%", phase, std::string(static_cast<std::size_t>(percent / 2), '#').c_str(),
+                 percent);
+  };
+
+  // The motion: a slow sweep over the whole travel and back, then fast multisine
+  // motion; the simulator's exact position plays the reference ruler.
+  sim::CalibrationRunConfig run;
+  run.sweep_speed_mps = options.sweep_speed_mps;
+  run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
+  std::vector<core::ReferenceSegment> segments;
+  std::string error;
+  if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error,
+                                   [&](double f) { progress("recording", f); })) {
+    std::fprintf(stderr, "\ncalibration run failed: %s\n", error.c_str());
+    return 1;
   }
   if (tty) std::fprintf(stderr, "\n");
+
   core::Calibration cal;
-  if (!builder.finish(cal.table, error)) {
+  core::IdentificationReport report;
+  if (!core::identify_with_reference(axis.motor, segments, core::IdentificationConfig{}, cal, report, error)) {
     std::fprintf(stderr, "calibration failed: %s\n", error.c_str());
     return 1;
   }
-  cal.info.motor = axis.motor.name;
-  cal.info.hall_count = axis.motor.hall.count;
-  cal.info.magnet_pitch_m = axis.motor.magnet_pitch_m;
-  cal.info.method = "reference";
   {
     const auto now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
     char buf[32];
@@ -319,24 +301,25 @@ int calibrate_command(const CalibrateOptions& options) {
     std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
     cal.info.created_utc = buf;
   }
-  cal.info.id = core::table_checksum(cal.table);
+  cal.info.id = core::calibration_checksum(cal);
 
-  // How far the identified table is from the nominal motor: a sanity figure.
-  const auto nominal = core::nominal_hall_table(axis.motor);
-  double max_dev = 0.0;
-  for (std::size_t i = 0; i < cal.table.v.size() && i < nominal.v.size(); ++i)
-    max_dev = std::max(max_dev, std::abs(cal.table.v[i] - nominal.v[i]));
-
+  const std::string summary = format_identification_report(axis, cal, report);
+  if (!report.good && !options.force) {
+    std::printf("%s", summary.c_str());
+    std::fprintf(stderr, "calibration NOT written: the result is poor (see above); --force writes it anyway\n");
+    return 1;
+  }
   const auto parent = std::filesystem::path(out).parent_path();
   if (!parent.empty()) std::filesystem::create_directories(parent);
   if (!config::write_calibration_file_atomic(out, cal, error)) {
     std::fprintf(stderr, "cannot write %s: %s\n", out.c_str(), error.c_str());
     return 1;
   }
-  std::printf("calibration %s written to %s\n  %llu samples over %.1f s of sweep at %.3f m/s, %d nodes x %d sensors,\n"
-              "  largest difference from the nominal table %.1f mV\n",
-              cal.info.id.c_str(), out.c_str(), static_cast<unsigned long long>(n), sweep_s, options.sweep_speed_mps,
-              cal.table.points, cal.table.sensors, max_dev * 1e3);
+  const std::string report_path = out + ".report.txt";
+  if (!write_text_file_atomic(report_path, summary, error))
+    std::fprintf(stderr, "warning: cannot write the report %s: %s\n", report_path.c_str(), error.c_str());
+  std::printf("%s", summary.c_str());
+  std::printf("calibration %s written to %s (report: %s)\n", cal.info.id.c_str(), out.c_str(), report_path.c_str());
   return 0;
 }
 

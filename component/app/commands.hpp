@@ -29,6 +29,7 @@ struct CalibrateOptions {
   std::string out;             ///< "" = the axis' calibration file, else calibration/<motor>.cal.yaml
   double sweep_speed_mps = 0.02;
   double sweep_acceleration_mps2 = 0.5;
+  bool force = false;          ///< write the calibration even when its verdict is poor
 };
 int calibrate_command(const CalibrateOptions& options);
 

@@ -39,8 +39,9 @@ int main(int argc, char** argv) {
   cal_cmd->add_option("--axis,-a", cal.axis, "Axis name (default: the first)");
   cal_cmd->add_option("--out,-o", cal.out, "Calibration file to write (default: the axis' calibration file)");
   cal_cmd->add_option("--speed", cal.sweep_speed_mps, "Sweep speed [m/s]")
-      ->check(CLI::Range(0.001, 0.5))
+      ->check(CLI::Range(0.005, 0.1))
       ->capture_default_str();
+  cal_cmd->add_flag("--force", cal.force, "Write the calibration even when its verdict is poor");
 
   ve::app::MonitorOptions mon;
   int mon_domain = -1;

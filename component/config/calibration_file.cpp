@@ -111,13 +111,22 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
   const Value id = root.required("id");
   id.as(info.id);
 
+  {
+    // Absent: ideal sensors (no delays, no coil field, unit scale, no bias).
+    Map m = root.map("sensor_model");
+    m.get("hall_delay_s", cal.model.hall_delay_s, schema::in_range(0.0, 0.01));
+    m.get("coil_field_v_per_mps2", cal.model.coil_field_v_per_mps2, schema::in_range(-1.0, 1.0));
+    m.get("accel_delay_s", cal.model.accel_delay_s, schema::in_range(0.0, 0.01));
+    m.get("accel_bias_mps2", cal.model.accel_bias_mps2, schema::in_range(-100.0, 100.0));
+    m.get("accel_scale", cal.model.accel_scale, schema::in_range(0.5, 2.0));
+  }
   const std::size_t before_table = errors.size();
   const Value table = root.required("table");
   if (table.present()) read_table(table.as_map(), cal.table, info.hall_count);
   if (errors.size() == before_table && id.present() && cal.table.valid()) {
-    const std::string sum = core::table_checksum(cal.table);
+    const std::string sum = core::calibration_checksum(cal);
     if (sum != info.id)
-      id.error(std::string(kCorrupt) + "the table's checksum is " + sum + " but id is " + info.id +
+      id.error(std::string(kCorrupt) + "the calibration's checksum is " + sum + " but id is " + info.id +
                " (the file was damaged or edited)");
   }
 }
@@ -125,7 +134,7 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
 // ---- writing -------------------------------------------------------------------
 
 void append_microvolts(std::string& out, double v) {
-  // Same rounding as core::table_checksum, so the stored decimal reproduces it.
+  // Same rounding as core::calibration_checksum, so the stored decimal reproduces it.
   const long long q = std::llround(v / kVoltUnit);
   const unsigned long long a = q < 0 ? static_cast<unsigned long long>(-q) : static_cast<unsigned long long>(q);
   if (q < 0) out += '-';
@@ -189,8 +198,8 @@ std::string check_writable(const core::Calibration& cal) {
     return "the table has " + std::to_string(t.sensors) + " sensors but info.hall_count is " +
            std::to_string(cal.info.hall_count);
   if (!(cal.info.magnet_pitch_m > 0.0)) return "info.magnet_pitch_m must be > 0";
-  if (!cal.info.id.empty() && cal.info.id != core::table_checksum(t))
-    return "info.id " + cal.info.id + " is not the checksum of the table (" + core::table_checksum(t) + ")";
+  if (!cal.info.id.empty() && cal.info.id != core::calibration_checksum(cal))
+    return "info.id " + cal.info.id + " is not the checksum of the calibration (" + core::calibration_checksum(cal) + ")";
   return {};
 }
 
@@ -248,7 +257,20 @@ std::string format_calibration(const core::Calibration& cal) {
   out += "method: " + yaml_string(cal.info.method.empty() ? std::string("unknown") : cal.info.method) + "\n";
   out += "created_utc: " + yaml_string(cal.info.created_utc.empty() ? now_utc() : cal.info.created_utc) + "\n";
   // Quoted: a hex string of digits only would otherwise read as a number in other YAML tools.
-  out += "id: \"" + core::table_checksum(t) + "\"   # checksum of the table\n";
+  out += "id: \"" + core::calibration_checksum(cal) + "\"   # checksum of the sensor model and the table\n";
+  {
+    const core::SensorModel& m = cal.model;
+    char buf[512];
+    std::snprintf(buf, sizeof buf,
+                  "sensor_model:   # identified by calibration; the estimator compensates these\n"
+                  "  hall_delay_s: %.9f          # the Halls are sampled this long before the sample instant\n"
+                  "  coil_field_v_per_mps2: %.9f # common-mode Hall offset per m/s^2 of acceleration (coil field)\n"
+                  "  accel_delay_s: %.9f         # the accelerometer lags the sample instant by this\n"
+                  "  accel_bias_mps2: %.7f       # reading = accel_scale * a + accel_bias_mps2\n"
+                  "  accel_scale: %.9f\n",
+                  m.hall_delay_s, m.coil_field_v_per_mps2, m.accel_delay_s, m.accel_bias_mps2, m.accel_scale);
+    out += buf;
+  }
   out += "table:\n";
   // Shortest round-trip form: the grid comes back bit-identical.
   out += "  start_m: " + schema::format_number(t.start_m) + "\n";

@@ -27,7 +27,7 @@ struct CalibrationLoad {
 /// complete and its checksum must equal the stored `id`.
 CalibrationLoad load_calibration_file(const std::string& path, const core::MotorConfig& expected);
 
-/// The file's text. `id` is core::table_checksum(cal.table); an empty
+/// The file's text. `id` is core::calibration_checksum(cal); an empty
 /// cal.info.created_utc is written as the current time.
 std::string format_calibration(const core::Calibration& cal);
 

@@ -967,12 +967,21 @@ class MachineLoader {
       im.get("track_seed", c.track_seed);
       im.get("magnet_strength_std", c.magnet_strength_std, non_negative());
       im.get("magnet_placement_std_m", c.magnet_placement_std_m, non_negative());
+      im.get("field_third_harmonic", c.field_third_harmonic,
+             schema::in_range(-sim::kMaxThirdHarmonic, sim::kMaxThirdHarmonic));
       im.get("sensor_placement_std_m", c.sensor_placement_std_m, non_negative());
       im.get("sensor_gain_std", c.sensor_gain_std, non_negative());
       im.get("sensor_offset_std_v", c.sensor_offset_std_v, non_negative());
       im.get("hall_delay_s", c.hall_delay_s, non_negative());
+      im.get("coil_field_v_per_mps2", c.coil_field_v_per_mps2, schema::in_range(-0.1, 0.1));
       im.get("accel_bias_mps2", c.accel_bias_mps2);
       im.get("accel_scale_error", c.accel_scale_error, schema::greater_than(-1.0));
+      im.get("accel_bias_random_walk_mps2_per_sqrt_s", c.accel_bias_random_walk_mps2_per_sqrt_s, non_negative());
+      im.get("accel_delay_s", c.accel_delay_s, schema::in_range(0.0, 0.1));
+      im.get("frame_reaction_ratio", c.frame_reaction_ratio, schema::in_range(-1.0, 1.0));
+      im.get("frame_vibration_mps2", c.frame_vibration_mps2, non_negative());
+      im.get("frame_vibration_hz", c.frame_vibration_hz, positive());
+      im.get("frame_accelerometer", c.frame_accelerometer);
     }
   }
 
@@ -983,12 +992,15 @@ class MachineLoader {
                 {"constant_velocity", K::constant_velocity},
                 {"constant_acceleration", K::constant_acceleration},
                 {"multisine", K::multisine},
-                {"shuttle", K::shuttle}});
+                {"shuttle", K::shuttle},
+                {"point_to_point", K::point_to_point}});
     const bool start_ok = optional<double>(p, "start_m", c.start_m);
     p.get("velocity_mps", c.velocity_mps);
     p.get("acceleration_mps2", c.acceleration_mps2);
     p.get("max_velocity_mps", c.max_velocity_mps, positive());
     p.get("max_acceleration_mps2", c.max_acceleration_mps2, positive());
+    p.get("max_jerk_mps3", c.max_jerk_mps3, positive());
+    p.get("dwell_s", c.dwell_s, non_negative());
     const bool min_ok = optional<double>(p, "min_m", c.min_m);
     const bool max_ok = optional<double>(p, "max_m", c.max_m);
     if (start_ok) within_travel(p, "start_m", c.start_m, travel);

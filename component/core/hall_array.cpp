@@ -24,7 +24,7 @@ bool HallArray::usable(const RawSample& s, int i) const {
   return (s.hall_valid_mask >> i & 1u) && s.hall_v[i] > lo_v_ && s.hall_v[i] < hi_v_;
 }
 
-HallFix HallArray::solve(const RawSample& sample, double guess_m) const {
+HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_mode_v) const {
   HallFix fix;
   for (int i = 0; i < sensors_; ++i)
     if (!(sample.hall_valid_mask >> i & 1u)) fix.missing_mask |= 1u << i;
@@ -40,7 +40,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m) const {
       double t, slope;
       table_.evaluate(i, x, t, slope);
       h += slope * slope;
-      g += slope * (sample.hall_v[i] - t);
+      g += slope * (sample.hall_v[i] - common_mode_v - t);
     }
     if (h <= 0.0) return fix;
     const double dx = std::clamp(g / h, -max_step, max_step);
@@ -61,7 +61,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m) const {
     if (!(sample.hall_valid_mask >> i & 1u)) continue;
     double t, slope;
     table_.evaluate(i, x, t, slope);
-    const double r = sample.hall_v[i] - t;
+    const double r = sample.hall_v[i] - common_mode_v - t;
     if (usable(sample, i)) {
       chi2 += r * r * weight_;
       h += slope * slope;
@@ -79,7 +79,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m) const {
   return fix;
 }
 
-HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m) const {
+HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v) const {
   lo_m = std::max(lo_m, table_.start_m);
   hi_m = std::min(hi_m, table_.end_m());
   const int k0 = static_cast<int>(std::ceil((lo_m - table_.start_m) / table_.step_m));
@@ -92,7 +92,7 @@ HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m) co
     double cost = 0.0;
     for (int i = 0; i < sensors_; ++i) {
       if (!(sample.hall_valid_mask >> i & 1u)) continue;
-      const double r = sample.hall_v[i] - table_.v[static_cast<std::size_t>(i) * table_.points + k];
+      const double r = sample.hall_v[i] - common_mode_v - table_.v[static_cast<std::size_t>(i) * table_.points + k];
       cost += r * r;
     }
     if (cost < best) {
@@ -101,7 +101,7 @@ HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m) co
     }
   }
   if (best_k < 0) return HallFix{};
-  return solve(sample, table_.start_m + best_k * table_.step_m);
+  return solve(sample, table_.start_m + best_k * table_.step_m, common_mode_v);
 }
 
 }  // namespace ve::core

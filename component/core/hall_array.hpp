@@ -29,11 +29,12 @@ class HallArray {
 
   /// Refines a position near `guess_m` (normally the filter's prediction).
   /// Converges when the guess is within about pitch/8 of the truth. No allocation.
-  HallFix solve(const RawSample& sample, double guess_m) const;
+  /// `common_mode_v` is removed from every reading first (the coil field's offset).
+  HallFix solve(const RawSample& sample, double guess_m, double common_mode_v = 0.0) const;
 
   /// Searches [lo_m, hi_m] for the best-matching position (start-up, re-acquisition),
   /// then refines it. Cost grows with the window; use at most a few periods.
-  HallFix acquire(const RawSample& sample, double lo_m, double hi_m) const;
+  HallFix acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v = 0.0) const;
 
   const HallTable& table() const { return table_; }
   double pitch_m() const { return pitch_m_; }

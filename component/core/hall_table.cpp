@@ -44,7 +44,7 @@ HallTable nominal_hall_table(const MotorConfig& motor, int points_per_pitch) {
   return table;
 }
 
-std::string table_checksum(const HallTable& table) {
+std::string calibration_checksum(const HallTable& table, const SensorModel& model) {
   std::uint64_t h = 1469598103934665603ull;
   auto mix = [&h](const void* data, std::size_t n) {
     const auto* p = static_cast<const unsigned char*>(data);
@@ -63,6 +63,11 @@ std::string table_checksum(const HallTable& table) {
   mix(&table.points, sizeof table.points);
   mix(&table.sensors, sizeof table.sensors);
   for (double x : table.v) mix_rounded(x, 1e-6);
+  mix_rounded(model.hall_delay_s, 1e-9);
+  mix_rounded(model.coil_field_v_per_mps2, 1e-9);
+  mix_rounded(model.accel_delay_s, 1e-9);
+  mix_rounded(model.accel_bias_mps2, 1e-7);
+  mix_rounded(model.accel_scale, 1e-9);
   static const char* kHex = "0123456789abcdef";
   std::string out(16, '0');
   for (int i = 15; i >= 0; --i) {

@@ -53,9 +53,13 @@ struct CalibrationInfo {
 struct Calibration {
   CalibrationInfo info;
   HallTable table;
+  SensorModel model;  ///< delays, coil field, accelerometer bias and scale
 };
 
-/// FNV-1a 64 of the table's numbers and grid, as 16 hex digits.
-std::string table_checksum(const HallTable& table);
+/// FNV-1a 64 of the table's numbers and grid and of the sensor model, as 16 hex
+/// digits. Values are rounded (1 uV, 1 nm, 1 ns, ...) before hashing, so a decimal
+/// text round trip at that precision reproduces it.
+std::string calibration_checksum(const HallTable& table, const SensorModel& model);
+inline std::string calibration_checksum(const Calibration& cal) { return calibration_checksum(cal.table, cal.model); }
 
 }  // namespace ve::core

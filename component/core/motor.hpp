@@ -38,7 +38,24 @@ struct AccelerometerConfig {
   double range_mps2 = 160.0;  ///< full scale; readings at or beyond it are saturated [m/s^2]
 };
 
-/// Block K tuning (the paper's Kalman filter on [x, v, a]).
+/// How the real sensors deviate from ideal ones in ways the estimator compensates.
+/// Identified by calibration (stored in the calibration file); the defaults are
+/// ideal sensors.
+struct SensorModel {
+  /// The Halls are sampled this long before the sample instant (filters, ADC) [s].
+  double hall_delay_s = 0.0;
+  /// Common-mode Hall offset from the motor coils' field, proportional to the
+  /// force and so to the acceleration [V per m/s^2].
+  double coil_field_v_per_mps2 = 0.0;
+  /// The accelerometer reads the acceleration this long before the sample instant [s].
+  double accel_delay_s = 0.0;
+  /// Accelerometer reading = accel_scale * a + accel_bias_mps2 (initial values;
+  /// the filter keeps estimating both).
+  double accel_bias_mps2 = 0.0;
+  double accel_scale = 1.0;
+};
+
+/// Block K tuning (the paper's Kalman filter on [x, v, a], extended).
 struct FilterConfig {
   /// Process noise: white jerk driving the acceleration state, one sigma per
   /// sample expressed as a jerk [m/s^3]. Q(2,2) = (jerk_std_mps3 * Ts)^2.
@@ -51,6 +68,24 @@ struct FilterConfig {
   double initial_position_std_m = 1e-3;
   double initial_velocity_std_mps = 1.0;
   double initial_acceleration_std_mps2 = 10.0;
+  /// Accelerometer bias: initial uncertainty and random walk the filter allows.
+  double accel_bias_std_mps2 = 0.1;
+  double accel_bias_random_walk_mps2_per_sqrt_s = 1e-3;
+  /// Accelerometer scale (relative): initial uncertainty and random walk. Off by
+  /// default: the scale comes from calibration. Online, scale and bias cannot be
+  /// told apart while the acceleration is constant, and the pair drifts.
+  double accel_scale_std = 0.0;
+  double accel_scale_random_walk_per_sqrt_s = 0.0;
+  /// An accelerometer innovation beyond this is a spike, not motion [m/s^2].
+  /// (A sigma gate would also reject real steps of acceleration.)
+  double accel_spike_mps2 = 60.0;
+  /// Consecutive Hall fixes rejected by the gate before the filter concludes that
+  /// it is the prediction that is wrong (an acceleration step) and widens its
+  /// covariance to follow the Halls again.
+  int hall_rejections_before_reset = 3;
+  /// Use the frame accelerometer, when the source has one, to remove the frame's
+  /// own motion from the moving accelerometer.
+  bool use_frame_accelerometer = true;
 };
 
 struct MotorConfig {

@@ -6,7 +6,7 @@
 #include <cstdint>
 
 #include "hall_array.hpp"
-#include "kalman.hpp"
+#include "fusion_filter.hpp"
 #include "motor.hpp"
 #include "sample.hpp"
 
@@ -14,15 +14,18 @@ namespace ve::core {
 
 struct PipelineConfig {
   MotorConfig motor;
+  SensorModel sensors;          ///< delays, coil field, accelerometer bias/scale (from calibration)
   bool calibrated = false;      ///< the table comes from a calibration, not the nominal model
   /// Start-up: true -> the carriage is within half a pitch of start_position_m and the
   /// position is absolute (HOMED); false -> the best match anywhere in the first
   /// periods is taken and the position is relative.
   bool start_position_known = true;
   double start_position_m = 0.5;
-  /// Consecutive rejected Hall fixes before the axis re-acquires and reports not valid.
-  int max_rejected_in_row = 40;
-  /// Gap in the sample stream beyond which the filter restarts instead of predicting through [s].
+  /// Consecutive samples without a Hall fix (no sensor out of saturation, or one
+  /// inconsistent with the saturated ones) before the axis re-acquires.
+  int max_samples_without_fix = 40;
+  /// Gap in the sample stream beyond which the filter restarts instead of
+  /// predicting through it; the period is then unknown and HOMED is lost [s].
   double max_gap_s = 0.05;
 };
 
@@ -41,6 +44,8 @@ struct EncoderEstimate {
   double hall_std_m = 0.0;
   int hall_sensors_used = 0;
   double hall_innovation_sigma = 0.0;  ///< normalised innovation of the Hall position
+  double accel_bias_mps2 = 0.0;        ///< current accelerometer bias estimate
+  double accel_scale = 1.0;            ///< current accelerometer scale estimate
   std::uint32_t samples_skipped = 0;   ///< samples missing before this one (from the timestamps)
 };
 
@@ -53,23 +58,28 @@ class AxisPipeline {
 
   const EncoderEstimate& last() const { return out_; }
   const HallArray& hall_array() const { return hall_; }
-  const KinematicKalman& filter() const { return kf_; }
+  const FusionFilter& filter() const { return kf_; }
   bool initialised() const { return initialised_; }
-  /// Forget the state; the next sample re-acquires as at start-up.
+  /// Forget the state; the next sample re-acquires near the last position.
   void restart() { initialised_ = false; }
 
  private:
-  bool initialise(const RawSample& sample);
+  bool acquire(const RawSample& sample);
+  bool use_frame(const RawSample& sample) const;
+  bool accel_usable(const RawSample& sample) const;
+  double accel_reading(const RawSample& sample) const;
 
   PipelineConfig cfg_;
   HallArray hall_;
-  KinematicKalman kf_;
+  FusionFilter kf_;
   EncoderEstimate out_;
-  bool initialised_ = false;
+  bool started_ = false;      ///< the filter has run at least once
+  bool initialised_ = false;  ///< the filter is running
   bool homed_ = false;
   std::int64_t last_t_ns_ = 0;
   std::int64_t period_ns_;
   int rejected_in_row_ = 0;
+  int without_fix_in_row_ = 0;
   double accel_var_;
 };
 

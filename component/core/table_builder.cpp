@@ -1,6 +1,7 @@
 #include "table_builder.hpp"
 
 #include <cmath>
+#include <limits>
 
 namespace ve::core {
 
@@ -38,7 +39,7 @@ void TableBuilder::add(double x_m, const RawSample& sample) {
   }
 }
 
-bool TableBuilder::finish(HallTable& out, std::string& error) const {
+bool TableBuilder::finish(HallTable& out, std::string& error, bool allow_missing) const {
   out = grid_;
   out.v.assign(sums_.size(), 0.0);
   int missing = 0;
@@ -55,12 +56,12 @@ bool TableBuilder::finish(HallTable& out, std::string& error) const {
         value = a.wy / a.w;  // all samples at one spot: take their mean
       } else {
         if (missing++ == 0) first_missing = grid_.start_m + k * grid_.step_m;
-        continue;
+        value = std::numeric_limits<double>::quiet_NaN();
       }
       out.v[static_cast<std::size_t>(s) * grid_.points + k] = value;
     }
   }
-  if (missing > 0) {
+  if (missing > 0 && !allow_missing) {
     error = std::to_string(missing) + " table nodes have no samples (first at " +
             std::to_string(first_missing * 1e3) + " mm): the sweep must cover the whole travel";
     return false;

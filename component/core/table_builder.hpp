@@ -21,9 +21,10 @@ class TableBuilder {
   /// Adds one sample at reference position x_m. Missing sensors are skipped.
   void add(double x_m, const RawSample& sample);
 
-  /// Fits every node. Fails (returns false, says why) when nodes lack samples on
-  /// both sides: the sweep did not cover the travel densely enough.
-  bool finish(HallTable& out, std::string& error) const;
+  /// Fits every node. Fails (returns false, says why) when nodes lack samples:
+  /// the sweep did not cover the travel. With allow_missing, such nodes are NaN
+  /// instead (for partial tables that are only compared, never used).
+  bool finish(HallTable& out, std::string& error, bool allow_missing = false) const;
 
   /// Fraction of grid nodes that have enough samples so far (for progress).
   double coverage() const;

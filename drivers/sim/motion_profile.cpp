@@ -45,6 +45,56 @@ Trapezoid trapezoid(double distance_m, double vmax, double amax) {
   return tr;
 }
 
+/// Rest-to-rest jerk-limited move (S-curve) over `distance_m` (signed): phases of
+/// jerk +j, 0, -j (accelerate), cruise, -j, 0, +j (decelerate).
+struct SCurve {
+  double jerk_s = 0.0;    ///< duration of each of the four jerk phases
+  double accel_s = 0.0;   ///< duration of each constant-acceleration phase (0: peak acceleration < amax)
+  double cruise_s = 0.0;  ///< duration at peak speed (0: peak speed < vmax)
+  double j_mps3 = 0.0;    ///< signed jerk of the first phase
+  double a_peak_mps2 = 0.0;  ///< signed
+  double v_peak_mps = 0.0;   ///< signed
+};
+
+SCurve scurve(double distance_m, double vmax, double amax, double jmax) {
+  SCurve m;
+  const double d = std::abs(distance_m);
+  if (d == 0.0) return m;
+  const double dir = sign_of(distance_m);
+  const double aa = amax * amax;
+  // Distance of a full accelerate + decelerate pair up to peak speed v (the S-curve is
+  // symmetric, so the mean speed of each half is v / 2).
+  auto pair_distance = [&](double v) { return v * (v * jmax >= aa ? v / amax + amax / jmax : 2.0 * std::sqrt(v / jmax)); };
+  double v = vmax;
+  bool cruise = true;
+  if (d < pair_distance(vmax)) {
+    cruise = false;
+    if (d >= 2.0 * aa * amax / (jmax * jmax)) {
+      // amax reached: v^2 + (amax^2 / j) v - amax d = 0, in the cancellation-free form.
+      const double b = aa / jmax;
+      v = 2.0 * amax * d / (b + std::sqrt(b * b + 4.0 * amax * d));
+    } else {
+      // Not even amax: four jerk phases only, d = 2 j Tj^3.
+      const double tj = std::cbrt(d / (2.0 * jmax));
+      v = jmax * tj * tj;
+    }
+  }
+  double a_peak;
+  if (v * jmax >= aa) {
+    a_peak = amax;
+    m.jerk_s = amax / jmax;
+    m.accel_s = std::max(0.0, v / amax - amax / jmax);
+  } else {
+    m.jerk_s = std::sqrt(v / jmax);
+    a_peak = jmax * m.jerk_s;
+  }
+  if (cruise) m.cruise_s = std::max(0.0, (d - pair_distance(v)) / v);
+  m.j_mps3 = dir * jmax;
+  m.a_peak_mps2 = dir * a_peak;
+  m.v_peak_mps = dir * v;
+  return m;
+}
+
 // Multisine frequency ratios: square roots of 2, 3, 5, 7 (over 2), so no ratio of two
 // of them is rational and the sum never repeats. Equal velocity shares.
 constexpr int kSines = MotionProfile::kMaxSines;
@@ -67,7 +117,7 @@ double sine_excursion(double vmax, double amax, double spread) {
 
 bool finite_all(const MotionProfileConfig& c) {
   for (double x : {c.start_m, c.velocity_mps, c.acceleration_mps2, c.max_velocity_mps,
-                   c.max_acceleration_mps2, c.min_m, c.max_m})
+                   c.max_acceleration_mps2, c.min_m, c.max_m, c.max_jerk_mps3, c.dwell_s})
     if (!std::isfinite(x)) return false;
   return true;
 }
@@ -82,13 +132,18 @@ const char* kind_name(MotionProfileConfig::Kind kind) {
     case K::constant_acceleration: return "constant_acceleration";
     case K::multisine: return "multisine";
     case K::shuttle: return "shuttle";
+    case K::point_to_point: return "point_to_point";
   }
   return "unknown";
 }
 
 Kinematics MotionProfile::eval(const Segment& s, double t_s) {
   const double tau = t_s - s.t0_s;
-  return {s.x0_m + (s.v0_mps + 0.5 * s.a_mps2 * tau) * tau, s.v0_mps + s.a_mps2 * tau, s.a_mps2};
+  if (s.j_mps3 == 0.0)
+    return {s.x0_m + (s.v0_mps + 0.5 * s.a_mps2 * tau) * tau, s.v0_mps + s.a_mps2 * tau, s.a_mps2};
+  const double j = s.j_mps3;
+  return {s.x0_m + (s.v0_mps + (0.5 * s.a_mps2 + (j / 6.0) * tau) * tau) * tau,
+          s.v0_mps + (s.a_mps2 + 0.5 * j * tau) * tau, s.a_mps2 + j * tau, j};
 }
 
 Kinematics MotionProfile::at(double t_s) const {
@@ -101,6 +156,7 @@ Kinematics MotionProfile::at(double t_s) const {
       k.position_m += sine_amp_m_[n] * s;
       k.velocity_mps += sine_amp_m_[n] * w * c;
       k.acceleration_mps2 -= sine_amp_m_[n] * w * w * s;
+      k.jerk_mps3 -= sine_amp_m_[n] * w * w * w * c;
     }
     return k;
   }
@@ -155,6 +211,33 @@ std::optional<MotionProfile> MotionProfile::create(const MotionProfileConfig& cf
       t_s += duration_s;
       state = eval(segs[count], t_s);
       ++count;
+    }
+    /// Constant jerk from the current state (acceleration included).
+    void add_jerk(double duration_s, double j_mps3) {
+      if (!(duration_s > 0.0)) return;
+      if (count == cap) { overflow = true; return; }
+      segs[count] = {t_s, state.position_m, state.velocity_mps, state.acceleration_mps2, j_mps3};
+      t_s += duration_s;
+      state = eval(segs[count], t_s);
+      state.jerk_mps3 = 0.0;
+      ++count;
+    }
+    /// A seven-phase S-curve move ending at rest at `x_m`. The acceleration and the
+    /// speed are set to their exact plateau values where a phase ends on one, so that
+    /// rounding never lets them creep past the limits.
+    void add_move(const SCurve& m, double x_m) {
+      add_jerk(m.jerk_s, m.j_mps3);
+      state.acceleration_mps2 = m.a_peak_mps2;
+      add_jerk(m.accel_s, 0.0);
+      add_jerk(m.jerk_s, -m.j_mps3);
+      state.acceleration_mps2 = 0.0;
+      state.velocity_mps = m.v_peak_mps;
+      add_jerk(m.cruise_s, 0.0);
+      add_jerk(m.jerk_s, -m.j_mps3);
+      state.acceleration_mps2 = -m.a_peak_mps2;
+      add_jerk(m.accel_s, 0.0);
+      add_jerk(m.jerk_s, m.j_mps3);
+      snap(x_m);
     }
     /// Ends a move at rest exactly at `x_m` (removes rounding of the ramps).
     void snap(double x_m) { state = {x_m, 0.0, 0.0}; }
@@ -322,6 +405,29 @@ std::optional<MotionProfile> MotionProfile::create(const MotionProfileConfig& cf
       cycle.add(out.accel_s, -out.a_mps2);
       cycle.add(out.cruise_s, 0.0);
       cycle.add(out.accel_s, out.a_mps2);
+      if (cycle.overflow) return bad("internal: too many segments");
+      p.period_s_ = cycle.t_s;
+      if (!(p.period_s_ > 0.0)) return bad("min_m and max_m must differ");
+      break;
+    }
+
+    case K::point_to_point: {
+      const double jmax = cfg.max_jerk_mps3;
+      if (!(vmax > 0.0) || !(amax > 0.0) || !(jmax > 0.0))
+        return bad("max_velocity_mps, max_acceleration_mps2 and max_jerk_mps3 must be positive");
+      if (!(cfg.dwell_s >= 0.0)) return bad(fmt("dwell_s %g must be >= 0", cfg.dwell_s));
+      // The farther end first; ties (within rounding) go to max_m.
+      const bool to_max_first = cfg.max_m - cfg.start_m >= cfg.start_m - cfg.min_m - 1e-12;
+      const double first = to_max_first ? cfg.max_m : cfg.min_m;
+      const double other = to_max_first ? cfg.min_m : cfg.max_m;
+      lead.add_move(scurve(first - cfg.start_m, vmax, amax, jmax), first);
+      p.cycle_start_s_ = lead.t_s;
+
+      Builder cycle{p.cycle_.data(), kMaxCycle, p.cycle_count_, 0.0, {first, 0.0, 0.0}};
+      cycle.add_jerk(cfg.dwell_s, 0.0);
+      cycle.add_move(scurve(other - first, vmax, amax, jmax), other);
+      cycle.add_jerk(cfg.dwell_s, 0.0);
+      cycle.add_move(scurve(first - other, vmax, amax, jmax), first);
       if (cycle.overflow) return bad("internal: too many segments");
       p.period_s_ = cycle.t_s;
       if (!(p.period_s_ > 0.0)) return bad("min_m and max_m must differ");

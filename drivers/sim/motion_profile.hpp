@@ -15,6 +15,7 @@ struct Kinematics {
   double position_m = 0.0;
   double velocity_mps = 0.0;
   double acceleration_mps2 = 0.0;
+  double jerk_mps3 = 0.0;  ///< between segments (where it steps): the jerk of the segment that starts there
 };
 
 /// "standstill", "constant_velocity", ... (the enumerator's name).
@@ -42,6 +43,15 @@ const char* kind_name(MotionProfileConfig::Kind kind);
 ///   from rest at start_m to the nearer of min_m / max_m ("lead-in", zero length if
 ///   start_m is one of them), then back and forth between min_m and max_m forever:
 ///   first to the far end, then back; period_s() is one round trip.
+/// - point_to_point: jerk-limited rest-to-rest moves (S-curve, seven phases: jerk
+///   +J, 0, -J, cruise, -J, 0, +J with J = max_jerk_mps3, |a| <= max_acceleration_mps2,
+///   |v| <= max_velocity_mps). From rest at start_m it moves at once (no dwell) to the
+///   FARTHER of min_m / max_m (ties: max_m) -- the "lead-in"; then, periodically: dwell
+///   dwell_s, move to the other end, dwell dwell_s, move back. period_s() is one round
+///   trip including both dwells. A move too short to reach max_velocity_mps drops the
+///   cruise and lowers the peak speed; one too short to reach max_acceleration_mps2
+///   too drops the constant-acceleration phases (peak acceleration sqrt(v J) < the
+///   bound). Each phase is an exact cubic in time; at() scans at most 16 segments.
 class MotionProfile {
  public:
   /// Standstill at 0 m; use create() for a configured profile.
@@ -62,9 +72,10 @@ class MotionProfile {
   /// standstill, multisine, shuttle: +infinity (they never leave their pattern).
   double steady_duration_s() const { return steady_duration_s_; }
 
-  /// shuttle: one round trip min_m -> max_m -> min_m [s]; 0 for the others.
+  /// shuttle, point_to_point: one round trip min_m -> max_m -> min_m (with both
+  /// dwells) [s]; 0 for the others.
   double period_s() const { return period_s_; }
-  /// shuttle: time of the lead-in move to the first turning point [s]; 0 otherwise.
+  /// shuttle, point_to_point: time of the lead-in move to the first end [s]; 0 otherwise.
   double lead_in_s() const { return cycle_start_s_; }
 
   /// multisine: components used (amplitude [m] and angular frequency [rad/s]).
@@ -74,15 +85,17 @@ class MotionProfile {
   double sine_omega_rps(int k) const { return sine_omega_rps_[static_cast<std::size_t>(k)]; }
 
  private:
-  /// Constant acceleration from (t0_s, x0_m, v0_mps) on; the last one lasts forever.
+  /// Constant jerk (usually 0: constant acceleration) from (t0_s, x0_m, v0_mps, a_mps2)
+  /// on; the last one lasts forever.
   struct Segment {
     double t0_s = 0.0;
     double x0_m = 0.0;
     double v0_mps = 0.0;
     double a_mps2 = 0.0;
+    double j_mps3 = 0.0;
   };
-  static constexpr int kMaxLead = 4;
-  static constexpr int kMaxCycle = 6;
+  static constexpr int kMaxLead = 8;    // point_to_point: a seven-phase move + hold slack
+  static constexpr int kMaxCycle = 16;  // point_to_point: 2 x (dwell + seven phases)
 
   static Kinematics eval(const Segment& s, double t_s);
 

@@ -8,29 +8,63 @@
 namespace ve::sim {
 
 struct MotionProfileConfig {
-  enum class Kind { standstill, constant_velocity, constant_acceleration, multisine, shuttle };
+  enum class Kind { standstill, constant_velocity, constant_acceleration, multisine, shuttle, point_to_point };
   Kind kind = Kind::multisine;
   double start_m = 0.5;               ///< position at t = 0 [m]
   double velocity_mps = 1.0;          ///< constant_velocity: speed; constant_acceleration: initial speed
   double acceleration_mps2 = 5.0;     ///< constant_acceleration
-  double max_velocity_mps = 2.0;      ///< multisine, shuttle: peak speed
-  double max_acceleration_mps2 = 10.0;///< multisine, shuttle: peak acceleration
-  double min_m = 0.05;                ///< shuttle: lower turning point; all profiles stay above it
-  double max_m = 0.95;                ///< shuttle: upper turning point; all profiles stay below it
+  double max_velocity_mps = 2.0;      ///< multisine, shuttle, point_to_point: peak speed
+  double max_acceleration_mps2 = 10.0;///< multisine, shuttle, point_to_point: peak acceleration
+  double min_m = 0.05;                ///< shuttle, point_to_point: lower end; all profiles stay above it
+  double max_m = 0.95;                ///< shuttle, point_to_point: upper end; all profiles stay below it
+  double max_jerk_mps3 = 250.0;       ///< point_to_point: peak jerk
+  double dwell_s = 0.1;               ///< point_to_point: rest at each end before moving back
 };
 
-/// Deviations of the simulated hardware from the nominal motor. All zero: the
-/// ideal motor of the paper. (The accuracy work turns them on.)
+/// Largest |ImperfectionConfig::field_third_harmonic|: beyond 1/3 the field would
+/// cross zero inside a magnet.
+inline constexpr double kMaxThirdHarmonic = 0.3;
+
+/// Deviations of the simulated hardware from the nominal motor. All zero (and
+/// frame_accelerometer false): the ideal motor of the paper, bit for bit what the
+/// simulator produced before the imperfections existed. (The accuracy work turns them on.)
 struct ImperfectionConfig {
   std::uint64_t track_seed = 7;             ///< fixes magnet tolerances so calibration and run see one track
+
+  // ---- magnet track and Hall sensors
   double magnet_strength_std = 0.0;         ///< relative, per magnet period
   double magnet_placement_std_m = 0.0;      ///< per magnet boundary
+  /// Relative third harmonic of the track field: the normalised field is
+  /// sin(theta) + h3 sin(3 theta), theta the local magnet phase. |h3| <= 0.3
+  /// (so the field crosses zero only at the magnet boundaries); +0.03 flattens the tops.
+  double field_third_harmonic = 0.0;
   double sensor_placement_std_m = 0.0;
   double sensor_gain_std = 0.0;             ///< relative
   double sensor_offset_std_v = 0.0;
-  double hall_delay_s = 0.0;
-  double accel_bias_mps2 = 0.0;
+  double hall_delay_s = 0.0;                ///< the Halls see the carriage at t - hall_delay_s
+  /// Field of the motor coils on the Halls: a common-mode offset k * a added to every
+  /// Hall output, a the carriage acceleration (standing in for the motor force) at the
+  /// Halls' own (delayed) sample instant [V per m/s^2].
+  double coil_field_v_per_mps2 = 0.0;
+
+  // ---- accelerometer on the carriage: reads (1 + scale) * a_inertial(t - d) + bias(t) + noise
+  double accel_bias_mps2 = 0.0;             ///< bias at the first sample read
   double accel_scale_error = 0.0;           ///< relative, +0.005 reads 0.5 % high
+  /// The bias random-walks from accel_bias_mps2: each later sample adds
+  /// N(0, (rw sqrt(Ts))^2), so after T seconds its std is rw sqrt(T) [m/s^2 / sqrt(s)].
+  double accel_bias_random_walk_mps2_per_sqrt_s = 0.0;
+  double accel_delay_s = 0.0;               ///< both accelerometers read the motion at t - accel_delay_s [s]
+
+  // ---- stationary frame: a_frame(t) = frame_reaction_ratio * a(t) + frame_vibration_mps2 sin(2 pi f t)
+  /// Frame acceleration per carriage acceleration (the motor force pushes the frame
+  /// back: negative, about -carriage mass / frame mass).
+  double frame_reaction_ratio = 0.0;
+  double frame_vibration_mps2 = 0.0;        ///< amplitude of the frame's own vibration [m/s^2]
+  double frame_vibration_hz = 35.0;         ///< its frequency f [Hz]
+  /// A second accelerometer on the frame (as in the paper): RawSample::accel_base_mps2 =
+  /// a_frame(t - accel_delay_s) + white noise (motor.accelerometer.noise_mps2, its own
+  /// stream); no bias, scale error or bias walk (a reference-grade sensor).
+  bool frame_accelerometer = false;
 };
 
 struct SimConfig {

@@ -50,6 +50,10 @@ class Stream {
 constexpr std::uint64_t kKeyBoundary = 1ull << 60;
 constexpr std::uint64_t kKeyStrength = 2ull << 60;
 constexpr std::uint64_t kKeySensor = 3ull << 60;
+// Keys of per-sample streams besides the Hall + accelerometer noise (from noise_seed;
+// the sample index goes in the low bits): independent of that noise and of each other.
+constexpr std::uint64_t kKeyBiasWalk = 5ull << 60;
+constexpr std::uint64_t kKeyBaseAccel = 6ull << 60;
 
 double track_normal(std::uint64_t seed, std::uint64_t key, std::int64_t index) {
   return Stream(seed, key ^ (static_cast<std::uint64_t>(index) & ((1ull << 60) - 1))).normal();
@@ -102,6 +106,14 @@ std::string SimSource::check(const core::MotorConfig& motor, const SimConfig& cf
                motor.magnet_pitch_m);
   if (!std::isfinite(im.hall_delay_s) || !std::isfinite(im.accel_bias_mps2) || !std::isfinite(im.accel_scale_error))
     return say("hall_delay_s, accel_bias_mps2 and accel_scale_error must be finite");
+  if (!(std::abs(im.field_third_harmonic) <= kMaxThirdHarmonic))
+    return say("field_third_harmonic %g must be within +-%g", im.field_third_harmonic, kMaxThirdHarmonic);
+  if (!std::isfinite(im.coil_field_v_per_mps2)) return say("coil_field_v_per_mps2 must be finite");
+  if (!finite_nonneg(im.accel_bias_random_walk_mps2_per_sqrt_s) || !finite_nonneg(im.accel_delay_s))
+    return say("accel_bias_random_walk_mps2_per_sqrt_s and accel_delay_s must be finite and >= 0");
+  if (!std::isfinite(im.frame_reaction_ratio) || !finite_nonneg(im.frame_vibration_mps2) ||
+      !finite_nonneg(im.frame_vibration_hz))
+    return say("frame_reaction_ratio must be finite, frame_vibration_mps2 and frame_vibration_hz finite and >= 0");
   if (!finite_nonneg(cfg.duration_s)) return say("duration_s %g must be >= 0 (0: unlimited)", cfg.duration_s);
 
   std::string why;
@@ -121,6 +133,13 @@ SimSource::SimSource(const core::MotorConfig& motor, const SimConfig& cfg, doubl
   lsb_v_ = motor.adc.lsb_v();
   max_code_ = (1 << motor.adc.bits) - 1;
   first_index_ = static_cast<std::uint64_t>(std::llround(start_time_s * motor.sample_rate_hz));
+  {
+    const ImperfectionConfig& im = cfg.imperfections;
+    third_harmonic_ = im.field_third_harmonic;
+    frame_moves_ = im.frame_reaction_ratio != 0.0 || im.frame_vibration_mps2 != 0.0;
+    frame_omega_rps_ = kTwoPi * im.frame_vibration_hz;
+    bias_step_mps2_ = im.accel_bias_random_walk_mps2_per_sqrt_s * std::sqrt(motor.sample_period_s());
+  }
   if (cfg.duration_s > 0.0)
     max_samples_ = static_cast<std::uint64_t>(std::ceil(cfg.duration_s * motor.sample_rate_hz - 1e-6));
 
@@ -169,15 +188,20 @@ void SimSource::build_track() {
   }
 }
 
+double SimSource::field_shape(double theta) const {
+  // The branch keeps h3 = 0 bit for bit the pure sine.
+  return third_harmonic_ == 0.0 ? std::sin(theta) : std::sin(theta) + third_harmonic_ * std::sin(3.0 * theta);
+}
+
 double SimSource::track_field(double x_m) const {
-  if (ideal_track_) return std::sin(wavenumber_rad_per_m_ * x_m);
+  if (ideal_track_) return field_shape(wavenumber_rad_per_m_ * x_m);
   const double pitch = motor_.magnet_pitch_m;
   const auto periods = static_cast<std::int64_t>(strength_.size());
   std::int64_t n = static_cast<std::int64_t>(std::floor(x_m / pitch)) - j_first_;
   // Boundaries move by at most a quarter pitch: one step corrects the nominal guess.
   if (n >= 0 && n <= periods && x_m < boundary_m_[static_cast<std::size_t>(n)]) --n;
   if (n >= 0 && n < periods && x_m >= boundary_m_[static_cast<std::size_t>(n + 1)]) ++n;
-  if (n < 0 || n >= periods) return std::sin(wavenumber_rad_per_m_ * x_m);
+  if (n < 0 || n >= periods) return field_shape(wavenumber_rad_per_m_ * x_m);
 
   const auto u = static_cast<std::size_t>(n);
   const double b0 = boundary_m_[u], b1 = boundary_m_[u + 1];
@@ -195,7 +219,13 @@ double SimSource::track_field(double x_m) const {
   }
   const double w = (x_m - centre) / (c_other - centre);
   const double strength = strength_[u] + (s_other - strength_[u]) * w;
-  return strength * std::sin(phase);
+  return strength * field_shape(phase);
+}
+
+double SimSource::frame_acceleration(double t_s, double carriage_acceleration_mps2) const {
+  if (!frame_moves_) return 0.0;
+  const ImperfectionConfig& im = cfg_.imperfections;
+  return im.frame_reaction_ratio * carriage_acceleration_mps2 + im.frame_vibration_mps2 * std::sin(frame_omega_rps_ * t_s);
 }
 
 double SimSource::hall_voltage_noiseless(int sensor, double carriage_x_m) const {
@@ -241,7 +271,12 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   const double t_s = static_cast<double>(k) / motor_.sample_rate_hz;
   const Kinematics now = profile_.at(t_s);
   const ImperfectionConfig& im = cfg_.imperfections;
-  const double hall_x = im.hall_delay_s == 0.0 ? now.position_m : profile_.at(t_s - im.hall_delay_s).position_m;
+  // What the Halls see: the carriage (relative to the frame, which carries the magnets)
+  // at their delayed instant, plus the coil field at that same instant.
+  const Kinematics at_halls = im.hall_delay_s == 0.0 ? now : profile_.at(t_s - im.hall_delay_s);
+  const double hall_x = at_halls.position_m;
+  const bool coil = im.coil_field_v_per_mps2 != 0.0;
+  const double coil_v = im.coil_field_v_per_mps2 * at_halls.acceleration_mps2;
 
   Stream noise(cfg_.noise_seed, k);
   out.t_ns = sample_time_ns(k);
@@ -250,18 +285,40 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   out.hall_valid_mask = (1u << motor_.hall.count) - 1u;
   out.hall_v.fill(0.0);
   for (int i = 0; i < motor_.hall.count; ++i) {
-    double v = hall_voltage_noiseless(i, hall_x) + motor_.hall.noise_v * noise.normal();
+    double v = hall_voltage_noiseless(i, hall_x);
+    if (coil) v += coil_v;
+    v += motor_.hall.noise_v * noise.normal();
     v = std::clamp(v, motor_.adc.min_v, motor_.adc.max_v);
     const double code = std::clamp(std::round((v - motor_.adc.min_v) / lsb_v_), 0.0, static_cast<double>(max_code_));
     out.hall_v[static_cast<std::size_t>(i)] = motor_.adc.min_v + code * lsb_v_;
   }
+  // Accelerometers: the motion at their delayed instant. The moving one is inertial, so
+  // it feels the frame's acceleration on top of the carriage's relative one.
+  const double t_acc_s = t_s - im.accel_delay_s;
+  const double a_carriage = im.accel_delay_s == 0.0 ? now.acceleration_mps2 : profile_.at(t_acc_s).acceleration_mps2;
+  const double a_frame = frame_acceleration(t_acc_s, a_carriage);
+  const double a_inertial = frame_moves_ ? a_carriage + a_frame : a_carriage;
+  if (bias_step_mps2_ > 0.0) {
+    // Sequential: the walk starts at the first sample read; each later one adds its
+    // own step, drawn from (noise_seed, sample index) so a re-read stream repeats it.
+    if (n > 0) bias_walk_mps2_ += bias_step_mps2_ * Stream(cfg_.noise_seed, kKeyBiasWalk ^ k).normal();
+    bias_now_mps2_ = im.accel_bias_mps2 + bias_walk_mps2_;
+  } else {
+    bias_now_mps2_ = im.accel_bias_mps2;
+  }
   const double range = motor_.accelerometer.range_mps2;
-  const double a = (1.0 + im.accel_scale_error) * now.acceleration_mps2 + im.accel_bias_mps2 +
+  const double a = (1.0 + im.accel_scale_error) * a_inertial + bias_now_mps2_ +
                    motor_.accelerometer.noise_mps2 * noise.normal();
   out.accel_mps2 = std::clamp(a, -range, range);
   out.accel_valid = true;
-  out.accel_base_mps2 = 0.0;
-  out.accel_base_valid = false;
+  if (im.frame_accelerometer) {
+    const double base = a_frame + motor_.accelerometer.noise_mps2 * Stream(cfg_.noise_seed, kKeyBaseAccel ^ k).normal();
+    out.accel_base_mps2 = std::clamp(base, -range, range);
+    out.accel_base_valid = true;
+  } else {
+    out.accel_base_mps2 = 0.0;
+    out.accel_base_valid = false;
+  }
 
   truth_ = {now.position_m, now.velocity_mps, now.acceleration_mps2};
   samples_read_ = n + 1;

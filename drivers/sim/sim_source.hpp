@@ -16,6 +16,18 @@
 
 namespace ve::sim {
 
+/// Imperfections (all in ImperfectionConfig; zero = none, bit for bit):
+/// - Halls: track (magnet strength/placement, third harmonic), sensor placement, gain
+///   and offset, delay hall_delay_s, and the coil field: + coil_field_v_per_mps2 * a(t -
+///   hall_delay_s) on every output (a = the profile's acceleration, standing in for the
+///   motor force). Then noise, ADC clamping and quantization.
+/// - Frame: a_frame(t) = frame_reaction_ratio a(t) + frame_vibration_mps2 sin(2 pi f t).
+///   The Halls measure relative to the frame, so truth() stays the profile.
+/// - Moving accelerometer, d = accel_delay_s: (1 + accel_scale_error) (a(t - d) +
+///   a_frame(t - d)) + bias + N(0, noise_mps2), bias = accel_bias_mps2 + a random walk
+///   that starts at the first sample read; clamped to +-range_mps2.
+/// - Frame accelerometer (frame_accelerometer): a_frame(t - d) + its own N(0,
+///   noise_mps2); no bias, scale error or walk; clamped to +-range_mps2.
 class SimSource final : public drivers::SensorSource {
  public:
   /// Never throws on bad parameters: ok() is then false, last_error() says why and
@@ -34,6 +46,12 @@ class SimSource final : public drivers::SensorSource {
   drivers::ReadStatus read(core::RawSample& out) override;
   /// Carriage state at the instant of the last sample read (not delayed).
   const core::Truth* truth() const override { return samples_read_ > 0 ? &truth_ : nullptr; }
+  /// The simulator's exact position stands in for a reference ruler.
+  bool reference_position(double& position_m) const override {
+    if (samples_read_ == 0) return false;
+    position_m = truth_.position_m;
+    return true;
+  }
   /// Wakes a sleeping read() within a few ms; every later read() returns stopped.
   void stop() override { stop_.store(true, std::memory_order_relaxed); }
   std::string describe() const override;
@@ -42,8 +60,19 @@ class SimSource final : public drivers::SensorSource {
   /// Output of Hall `sensor` with the carriage at `carriage_x_m`, with all track and
   /// sensor imperfections but before noise, ADC clamping and quantization [V].
   double hall_voltage_noiseless(int sensor, double carriage_x_m) const;
-  /// Normalised track field at track position `x_m` (ideal: sin(2 pi x / pitch)).
+  /// Normalised track field at track position `x_m` (ideal: sin(2 pi x / pitch); with
+  /// field_third_harmonic h3: sin(theta) + h3 sin(3 theta) of the local magnet phase
+  /// theta, times the local magnet strength). Excludes the coil field, which depends on
+  /// the acceleration: read() adds coil_field_v_per_mps2 * a(t - hall_delay_s) to every Hall.
   double track_field(double x_m) const;
+  /// Acceleration of the stationary frame at `t_s`, given the carriage's (relative)
+  /// acceleration at that instant: frame_reaction_ratio * a + frame_vibration_mps2 *
+  /// sin(2 pi frame_vibration_hz t_s) [m/s^2]; exactly 0 when both are 0.
+  double frame_acceleration(double t_s, double carriage_acceleration_mps2) const;
+  double frame_acceleration(double t_s) const { return frame_acceleration(t_s, profile_.at(t_s).acceleration_mps2); }
+  /// Bias of the moving accelerometer at the last sample read (accel_bias_mps2 plus the
+  /// random walk so far) [m/s^2].
+  double accel_bias_now_mps2() const { return bias_now_mps2_; }
   /// Where sensor `sensor` really sits relative to the carriage (offset + placement error) [m].
   double sensor_position_m(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].position_m; }
 
@@ -63,6 +92,7 @@ class SimSource final : public drivers::SensorSource {
   };
 
   void build_track();
+  double field_shape(double theta) const;
   bool wait_until_due(std::uint64_t n);  // false: stopped while waiting
 
   core::MotorConfig motor_;
@@ -81,6 +111,13 @@ class SimSource final : public drivers::SensorSource {
   std::int64_t j_first_ = 0;
   std::vector<double> boundary_m_;  // size + 1 entries; the first and last are nominal
   std::vector<double> strength_;    // per period, at the period's centre
+
+  double third_harmonic_ = 0.0;
+  bool frame_moves_ = false;        // frame_reaction_ratio or frame_vibration_mps2 non-zero
+  double frame_omega_rps_ = 0.0;
+  double bias_step_mps2_ = 0.0;     // random-walk step per sample, one sigma
+  double bias_walk_mps2_ = 0.0;     // walk so far (sequential state)
+  double bias_now_mps2_ = 0.0;
 
   std::uint64_t first_index_ = 0;
   std::uint64_t max_samples_ = 0;  // 0: unlimited

@@ -1,6 +1,8 @@
 // Calibration files: exact round trip, refusal of damaged or foreign files, and
 // atomic replacement that never leaves a half-written calibration behind.
 #include <gtest/gtest.h>
+
+#include <algorithm>
 #include <signal.h>
 #include <stdlib.h>
 #include <sys/resource.h>
@@ -35,7 +37,7 @@ class CalibrationFile : public ::testing::Test {
     cal_.info.method = "reference";
     cal_.info.created_utc = "2026-11-22T03:00:00Z";
     cal_.table = core::nominal_hall_table(motor_);
-    cal_.info.id = core::table_checksum(cal_.table);
+    cal_.info.id = core::calibration_checksum(cal_);
   }
   void TearDown() override {
     std::error_code ec;
@@ -102,7 +104,7 @@ TEST_F(CalibrationFile, RoundTripIsExactToOneMicrovolt) {
   EXPECT_EQ(c.info.method, "reference");
   EXPECT_EQ(c.info.created_utc, "2026-11-22T03:00:00Z");
   EXPECT_EQ(c.info.id, cal_.info.id);
-  EXPECT_EQ(core::table_checksum(c.table), cal_.info.id);
+  EXPECT_EQ(core::calibration_checksum(c), cal_.info.id);
   EXPECT_EQ(c.table.start_m, cal_.table.start_m);  // bit-identical grid
   EXPECT_EQ(c.table.step_m, cal_.table.step_m);
   EXPECT_EQ(c.table.points, cal_.table.points);
@@ -129,7 +131,7 @@ TEST_F(CalibrationFile, RoundTripOfAnOddTable) {
   EXPECT_EQ(r.calibration.info.motor, m.name);
   EXPECT_EQ(r.calibration.table.start_m, cal_.table.start_m);
   EXPECT_EQ(r.calibration.table.step_m, cal_.table.step_m);
-  EXPECT_EQ(r.calibration.info.id, core::table_checksum(cal_.table));
+  EXPECT_EQ(r.calibration.info.id, core::calibration_checksum(cal_));
 }
 
 TEST_F(CalibrationFile, RefusesTruncatedFile) {
@@ -150,7 +152,9 @@ TEST_F(CalibrationFile, RefusesTruncatedFile) {
   const CalibrationLoad r2 = load_calibration_file(p, motor_);
   const ConfigError e2 = only_error(r2);
   EXPECT_EQ(e2.field, "table.sensors");
-  EXPECT_EQ(e2.line, 16);  // the first row: the sensors sequence starts there
+  // The first row: the sensors sequence starts there.
+  const auto first_row_line = 1 + std::count(text.begin(), text.begin() + text.find("\n    - [") + 1, '\n');
+  EXPECT_EQ(e2.line, first_row_line);
   EXPECT_EQ(e2.column, 5);
   EXPECT_EQ(e2.message, "corrupt: table has 2 sensor rows but hall_count is 4");
 }
@@ -167,7 +171,7 @@ TEST_F(CalibrationFile, RefusesChangedValue) {
   EXPECT_EQ(e.field, "id");
   EXPECT_EQ(e.line, 10);
   EXPECT_EQ(e.column, 5);
-  EXPECT_EQ(e.message.rfind("corrupt: the table's checksum is ", 0), 0u) << e.to_string();
+  EXPECT_EQ(e.message.rfind("corrupt: the calibration's checksum is ", 0), 0u) << e.to_string();
 }
 
 TEST_F(CalibrationFile, RefusesAnotherMotorsFile) {

@@ -6,6 +6,8 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <limits>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -85,6 +87,21 @@ std::vector<ProfileCase> profile_cases() {
     c.start_m = c.min_m;
     c.max_velocity_mps = 0.02;
     cases.push_back({"shuttle slow sweep", c, 200.0});
+  }
+  {
+    auto c = profile_of(Kind::point_to_point);
+    cases.push_back({"point_to_point", c, 10.0});
+    c.start_m = 0.2;  // goes to max_m first
+    c.dwell_s = 0.0;
+    cases.push_back({"point_to_point no dwell", c, 10.0});
+    c.min_m = 0.45;  // 0.1 m: amax reached, vmax not
+    c.max_m = 0.55;
+    c.start_m = 0.5;
+    c.dwell_s = 0.05;
+    cases.push_back({"point_to_point short", c, 5.0});
+    c.min_m = 0.49;  // 0.02 m: neither
+    c.max_m = 0.51;
+    cases.push_back({"point_to_point tiny", c, 5.0});
   }
   return cases;
 }
@@ -245,6 +262,120 @@ TEST(SimProfile, ShuttlePeriodicBetweenEnds) {
   EXPECT_NEAR(sweep.period_s(), 2.0 * (0.9 / 0.02 + 0.02 / 10.0), 1e-9);
 }
 
+/// Samples `p` over [t0, t1) every dt and records peaks and whether the jerk agrees
+/// with the acceleration's finite difference (away from jerk steps).
+struct Peaks {
+  double v = 0.0, a = 0.0, j = 0.0, xmin = 1e9, xmax = -1e9;
+  int bad_jerk = 0;
+};
+
+Peaks scan(const MotionProfile& p, double t0, double t1, double dt) {
+  Peaks pk;
+  const double h = 1e-6;
+  for (double t = t0; t < t1; t += dt) {
+    const Kinematics k = p.at(t), before = p.at(t - h), after = p.at(t + h);
+    pk.v = std::max(pk.v, std::abs(k.velocity_mps));
+    pk.a = std::max(pk.a, std::abs(k.acceleration_mps2));
+    pk.j = std::max(pk.j, std::abs(k.jerk_mps3));
+    pk.xmin = std::min(pk.xmin, k.position_m);
+    pk.xmax = std::max(pk.xmax, k.position_m);
+    if (before.jerk_mps3 == after.jerk_mps3 &&
+        std::abs((after.acceleration_mps2 - before.acceleration_mps2) / (2 * h) - k.jerk_mps3) > 1e-4)
+      ++pk.bad_jerk;
+  }
+  return pk;
+}
+
+TEST(SimProfile, PointToPointReachesButNeverExceedsLimits) {
+  auto cfg = profile_of(Kind::point_to_point);
+  cfg.max_velocity_mps = 1.5;
+  cfg.max_acceleration_mps2 = 10.0;
+  cfg.max_jerk_mps3 = 250.0;
+  cfg.dwell_s = 0.1;  // start 0.5 in [0.05, 0.95]: a tie, so max_m first
+  const MotionProfile p = make(cfg);
+  // A 0.9 m move: jerk phases 10 / 250 = 0.04 s, constant acceleration 1.5 / 10 - 0.04
+  // = 0.11 s, so 0.19 s and 0.1425 m to reach 1.5 m/s; cruise (0.9 - 0.285) / 1.5 s.
+  const double move = 4 * 0.04 + 2 * 0.11 + (0.9 - 0.285) / 1.5;
+  EXPECT_NEAR(p.period_s(), 2 * (move + 0.1), 1e-12);
+  EXPECT_NEAR(p.lead_in_s(), 4 * 0.04 + 2 * 0.11 + (0.45 - 0.285) / 1.5, 1e-12);
+  EXPECT_GT(p.at(0.1).velocity_mps, 0.0);  // towards max_m
+
+  const Peaks pk = scan(p, 0.0, p.lead_in_s() + 3 * p.period_s(), 1.0 / 4000.0 * 1.013);
+  EXPECT_LE(pk.v, 1.5 * (1 + 1e-12));
+  EXPECT_GE(pk.v, 1.5 * 0.99);
+  EXPECT_LE(pk.a, 10.0 * (1 + 1e-12));
+  EXPECT_GE(pk.a, 10.0 * 0.99);
+  EXPECT_EQ(pk.j, 250.0);
+  EXPECT_EQ(pk.bad_jerk, 0);
+  EXPECT_GE(pk.xmin, 0.05 - 1e-12);
+  EXPECT_LE(pk.xmax, 0.95 + 1e-12);
+  EXPECT_NEAR(pk.xmin, 0.05, 1e-12);
+  EXPECT_NEAR(pk.xmax, 0.95, 1e-12);
+
+  // Dwell at each end, exactly at rest.
+  const double t_top = p.lead_in_s(), t_bottom = p.lead_in_s() + 0.1 + move;
+  for (double t : {t_top, t_bottom}) {
+    const double end = t == t_top ? 0.95 : 0.05;
+    for (double tau = 1e-9; tau < 0.1 - 1e-9; tau += 0.01) {
+      const Kinematics k = p.at(t + tau);
+      EXPECT_EQ(k.position_m, end) << t << " + " << tau;
+      EXPECT_EQ(k.velocity_mps, 0.0);
+      EXPECT_EQ(k.acceleration_mps2, 0.0);
+      EXPECT_EQ(k.jerk_mps3, 0.0);
+    }
+    EXPECT_NE(p.at(t + 0.1 + 0.001).velocity_mps, 0.0);  // moving again after the dwell
+  }
+  // Periodic.
+  for (double t = p.lead_in_s(); t < p.lead_in_s() + p.period_s(); t += 0.00237) {
+    const Kinematics a = p.at(t), b = p.at(t + 5 * p.period_s());
+    EXPECT_NEAR(a.position_m, b.position_m, 1e-9);
+    EXPECT_NEAR(a.velocity_mps, b.velocity_mps, 1e-9);
+    EXPECT_NEAR(a.acceleration_mps2, b.acceleration_mps2, 1e-6);
+  }
+  // Before t = 0: at rest at start_m.
+  EXPECT_EQ(p.at(-0.01).position_m, 0.5);
+  EXPECT_EQ(p.at(-0.01).velocity_mps, 0.0);
+
+  cfg.start_m = 0.7;  // farther end is min_m
+  const MotionProfile down = make(cfg);
+  EXPECT_LT(down.at(0.1).velocity_mps, 0.0);
+  EXPECT_NEAR(down.at(down.lead_in_s()).position_m, 0.05, 1e-12);
+}
+
+TEST(SimProfile, PointToPointShortMovesDropPlateaus) {
+  auto cfg = profile_of(Kind::point_to_point);  // vmax 2, amax 10, jmax 250
+  cfg.dwell_s = 0.2;
+  // 0.1 m: amax is reached (needs 2 amax^3 / j^2 = 0.032 m) but not vmax.
+  cfg.min_m = 0.45;
+  cfg.max_m = 0.55;
+  const MotionProfile mid = make(cfg);
+  const Peaks a = scan(mid, mid.lead_in_s(), mid.lead_in_s() + 2 * mid.period_s(), 1e-4);
+  // v^2 + (amax^2 / j) v = amax d.
+  const double v = (-0.4 + std::sqrt(0.16 + 4.0 * 10.0 * 0.1)) / 2.0;
+  EXPECT_NEAR(a.v, v, 1e-6);
+  EXPECT_NEAR(a.a, 10.0, 1e-12);
+  EXPECT_EQ(a.j, 250.0);
+  EXPECT_EQ(a.bad_jerk, 0);
+  // No cruise: move time 4 Tj + 2 Ta = 2 (v / amax + amax / j).
+  EXPECT_NEAR(mid.period_s(), 2 * (2 * (v / 10.0 + 10.0 / 250.0) + 0.2), 1e-12);
+  EXPECT_NEAR(a.xmin, 0.45, 1e-12);
+  EXPECT_NEAR(a.xmax, 0.55, 1e-12);
+
+  // 0.02 m: neither plateau; four jerk phases of (d / 2j)^(1/3).
+  cfg.min_m = 0.49;
+  cfg.max_m = 0.51;
+  const MotionProfile tiny = make(cfg);
+  const Peaks b = scan(tiny, tiny.lead_in_s(), tiny.lead_in_s() + 2 * tiny.period_s(), 1e-5);
+  const double tj = std::cbrt(0.02 / 500.0);
+  EXPECT_NEAR(b.a, 250.0 * tj, 1e-3 * 250.0 * tj);  // sampled peak of a triangle: within one step
+  EXPECT_LT(b.a, 10.0);
+  EXPECT_NEAR(b.v, 250.0 * tj * tj, 1e-7);
+  EXPECT_EQ(b.j, 250.0);
+  EXPECT_NEAR(tiny.period_s(), 2 * (4 * tj + 0.2), 1e-12);
+  EXPECT_NEAR(b.xmin, 0.49, 1e-12);
+  EXPECT_NEAR(b.xmax, 0.51, 1e-12);
+}
+
 TEST(SimProfile, FactoryRejectsInvalidParameters) {
   struct Bad {
     const char* name;
@@ -276,13 +407,22 @@ TEST(SimProfile, FactoryRejectsInvalidParameters) {
   c = profile_of(Kind::multisine);
   c.max_acceleration_mps2 = std::nan("");
   bad.push_back({"nan", c});
+  c = profile_of(Kind::point_to_point);
+  c.max_jerk_mps3 = 0.0;
+  bad.push_back({"zero jerk", c});
+  c = profile_of(Kind::point_to_point);
+  c.dwell_s = -0.1;
+  bad.push_back({"negative dwell", c});
+  c = profile_of(Kind::point_to_point);
+  c.dwell_s = std::numeric_limits<double>::infinity();
+  bad.push_back({"infinite dwell", c});
   for (const Bad& b : bad) {
     std::string error;
     EXPECT_FALSE(MotionProfile::create(b.cfg, 1.0, &error)) << b.name;
     EXPECT_FALSE(error.empty()) << b.name;
   }
   for (Kind k : {Kind::standstill, Kind::constant_velocity, Kind::constant_acceleration, Kind::multisine,
-                 Kind::shuttle}) {
+                 Kind::shuttle, Kind::point_to_point}) {
     std::string error;
     EXPECT_TRUE(MotionProfile::create(profile_of(k), 1.0, &error)) << ve::sim::kind_name(k) << ": " << error;
   }
@@ -469,6 +609,337 @@ TEST(SimSource, AccelerometerBiasScaleAndHallDelay) {
       EXPECT_NEAR(s.hall_v[static_cast<std::size_t>(i)], expect, motor.adc.lsb_v());
     }
   }
+}
+
+// ---- imperfections beyond the paper ------------------------------------------
+
+/// Noise-free sensors on a 24-bit ADC: readings are the model to within 0.3 uV.
+MotorConfig exact_motor() {
+  MotorConfig m;
+  m.hall.noise_v = 0.0;
+  m.accelerometer.noise_mps2 = 0.0;
+  m.adc.bits = 24;
+  return m;
+}
+
+TEST(SimSource, ThirdHarmonicShapesTheField) {
+  MotorConfig motor;
+  auto cfg = offline(Kind::standstill);
+  cfg.imperfections.field_third_harmonic = 0.03;
+  SimSource src(motor, cfg);
+  ASSERT_TRUE(src.ok()) << src.last_error();
+  const double p = motor.magnet_pitch_m, k = 2 * M_PI / p;
+  double peak = 0.0;
+  for (double x = 0.1; x < 0.2; x += 0.0000731) {
+    const double th = k * x;
+    EXPECT_NEAR(src.track_field(x), std::sin(th) + 0.03 * std::sin(3 * th), 1e-12);
+    const double th1 = k * (x + p / 8);
+    EXPECT_NEAR(src.hall_voltage_noiseless(1, x), 2.5 + 2.5 * std::sqrt(2.0) * (std::sin(th1) + 0.03 * std::sin(3 * th1)),
+                1e-12);
+    peak = std::max(peak, src.track_field(x));
+  }
+  EXPECT_NEAR(peak, 0.97, 1e-4);  // +h3 flattens the tops: sin(3 theta) = -1 at theta = pi / 2
+
+  // On an imperfect track the harmonic follows the local magnet phase: the zero
+  // crossings stay at the magnet boundaries and the field is sin(theta) (1 + h3 (3 -
+  // 4 sin^2 theta)) times the local strength, so its ratio to the plain one is in [1 - h3, 1 + 3 h3].
+  cfg.imperfections.magnet_strength_std = 0.015;
+  cfg.imperfections.magnet_placement_std_m = 20e-6;
+  SimSource warped(motor, cfg);
+  cfg.imperfections.field_third_harmonic = 0.0;
+  SimSource plain(motor, cfg);
+  int checked = 0;
+  for (double x = 0.0; x < 1.0; x += 0.0000937) {
+    const double a = warped.track_field(x), b = plain.track_field(x);
+    if (std::abs(b) < 1e-3) continue;
+    EXPECT_GE(a / b, 0.97 - 1e-9) << x;
+    EXPECT_LE(a / b, 1.09 + 1e-9) << x;
+    ++checked;
+  }
+  EXPECT_GT(checked, 10000);
+}
+
+TEST(SimSource, CoilFieldOffsetsEveryHallByKTimesAcceleration) {
+  const MotorConfig motor = exact_motor();
+  const double lsb = motor.adc.lsb_v();
+  auto cfg = offline(Kind::constant_acceleration);  // from rest at 0.5, 5 m/s^2 for 0.346 s
+  cfg.profile.velocity_mps = 0.0;
+  cfg.imperfections.hall_delay_s = 20e-6;
+  cfg.imperfections.coil_field_v_per_mps2 = 0.001;
+  SimSource src(motor, cfg);
+  cfg.imperfections.coil_field_v_per_mps2 = 0.0;
+  SimSource none(motor, cfg);
+  ASSERT_TRUE(src.ok() && none.ok()) << src.last_error();
+  RawSample s, q;
+  int checked = 0;
+  for (int n = 0; n < 1300; ++n) {  // 0.325 s: inside the constant-acceleration window
+    ASSERT_EQ(src.read(s), ReadStatus::ok);
+    ASSERT_EQ(none.read(q), ReadStatus::ok);
+    if (n == 0) continue;  // the Halls' instant is before t = 0, where the carriage is at rest
+    const double x = src.profile().at(n / 4000.0 - 20e-6).position_m;
+    for (int i = 0; i < 4; ++i) {
+      const double v = src.hall_voltage_noiseless(i, x);
+      if (v < 0.1 || v > 4.9) continue;
+      const auto u = static_cast<std::size_t>(i);
+      EXPECT_NEAR(s.hall_v[u], v + 0.001 * 5.0, lsb) << n << " " << i;
+      EXPECT_NEAR(q.hall_v[u], v, lsb) << n << " " << i;  // zero: no offset
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 1000);
+
+  // Varying acceleration: the offset follows a at the Halls' (delayed) instant.
+  cfg = offline(Kind::multisine);
+  cfg.imperfections.hall_delay_s = 500e-6;
+  cfg.imperfections.coil_field_v_per_mps2 = 0.001;
+  SimSource ms(motor, cfg);
+  double max_if_undelayed = 0.0;
+  checked = 0;
+  for (int n = 0; n < 8000; ++n) {
+    ASSERT_EQ(ms.read(s), ReadStatus::ok);
+    const double t = n / 4000.0;
+    const Kinematics d = ms.profile().at(t - 500e-6), now = ms.profile().at(t);
+    for (int i = 0; i < 4; ++i) {
+      const double v = ms.hall_voltage_noiseless(i, d.position_m);
+      if (v < 0.1 || v > 4.9) continue;
+      const auto u = static_cast<std::size_t>(i);
+      EXPECT_NEAR(s.hall_v[u], v + 0.001 * d.acceleration_mps2, lsb) << n << " " << i;
+      max_if_undelayed = std::max(max_if_undelayed, std::abs(s.hall_v[u] - (v + 0.001 * now.acceleration_mps2)));
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 4000);
+  EXPECT_GT(max_if_undelayed, 10 * lsb);  // the instant matters, and the test can tell
+}
+
+TEST(SimSource, AccelerometerReadsTheDelayedAcceleration) {
+  MotorConfig motor = exact_motor();
+  auto cfg = offline(Kind::multisine);
+  cfg.imperfections.accel_delay_s = 250e-6;
+  cfg.imperfections.accel_scale_error = 0.005;
+  cfg.imperfections.accel_bias_mps2 = 0.05;
+  SimSource src(motor, cfg);
+  ASSERT_TRUE(src.ok()) << src.last_error();
+  RawSample s;
+  double max_if_undelayed = 0.0;
+  for (int n = 0; n < 8000; ++n) {
+    ASSERT_EQ(src.read(s), ReadStatus::ok);
+    const double t = n / 4000.0;
+    EXPECT_NEAR(s.accel_mps2, 1.005 * src.profile().at(t - 250e-6).acceleration_mps2 + 0.05, 1e-12) << n;
+    max_if_undelayed = std::max(max_if_undelayed, std::abs(s.accel_mps2 - (1.005 * src.truth()->acceleration_mps2 + 0.05)));
+    EXPECT_EQ(src.truth()->position_m, src.profile().at(t).position_m);  // the truth is not delayed
+  }
+  EXPECT_GT(max_if_undelayed, 5e-3);  // ~ peak jerk x 250 us
+
+  // With the white noise back: the residual is that noise, nothing more.
+  motor.accelerometer.noise_mps2 = 0.02;
+  SimSource noisy(motor, cfg);
+  double sum = 0.0, sum2 = 0.0;
+  const int n_samples = 20000;
+  for (int n = 0; n < n_samples; ++n) {
+    ASSERT_EQ(noisy.read(s), ReadStatus::ok);
+    const double r = s.accel_mps2 - (1.005 * noisy.profile().at(n / 4000.0 - 250e-6).acceleration_mps2 + 0.05);
+    sum += r;
+    sum2 += r * r;
+  }
+  EXPECT_NEAR(sum / n_samples, 0.0, 5 * 0.02 / std::sqrt(n_samples));
+  EXPECT_NEAR(std::sqrt(sum2 / n_samples), 0.02, 0.002);
+}
+
+/// Moving-accelerometer readings at standstill with no white noise: the bias alone.
+std::vector<double> bias_path(std::uint64_t seed, double rw, int n, std::vector<double>* halls = nullptr) {
+  MotorConfig motor;
+  motor.accelerometer.noise_mps2 = 0.0;
+  auto cfg = offline(Kind::standstill);
+  cfg.noise_seed = seed;
+  cfg.imperfections.accel_bias_mps2 = 0.05;
+  cfg.imperfections.accel_scale_error = 0.005;
+  cfg.imperfections.accel_bias_random_walk_mps2_per_sqrt_s = rw;
+  SimSource src(motor, cfg);
+  std::vector<double> out(static_cast<std::size_t>(n));
+  RawSample s;
+  for (auto& b : out) {
+    EXPECT_EQ(src.read(s), ReadStatus::ok);
+    b = s.accel_mps2;
+    EXPECT_EQ(src.accel_bias_now_mps2(), b);
+    if (halls) halls->insert(halls->end(), s.hall_v.begin(), s.hall_v.begin() + 4);
+  }
+  return out;
+}
+
+TEST(SimSource, AccelerometerBiasRandomWalk) {
+  const double rw = 1e-4;
+  const int n = 4000;  // 1 s
+  // Over many seeds the bias after T seconds spreads as rw sqrt(T) about accel_bias_mps2.
+  const int seeds = 300;
+  double s_q = 0.0, s_e = 0.0, m_e = 0.0;
+  for (int k = 0; k < seeds; ++k) {
+    const auto path = bias_path(1000 + static_cast<std::uint64_t>(k), rw, n);
+    ASSERT_EQ(path[0], 0.05);  // the walk starts at the first sample
+    const double q = path[1000] - 0.05, e = path[n - 1] - 0.05;
+    s_q += q * q;
+    s_e += e * e;
+    m_e += e;
+  }
+  EXPECT_NEAR(std::sqrt(s_q / seeds), rw * std::sqrt(1000 / 4000.0), 0.2 * rw * std::sqrt(0.25));
+  EXPECT_NEAR(std::sqrt(s_e / seeds), rw * std::sqrt((n - 1) / 4000.0), 0.2 * rw);
+  EXPECT_NEAR(m_e / seeds, 0.0, 5 * rw / std::sqrt(seeds));
+
+  // Per sample, a white step of rw sqrt(Ts).
+  std::vector<double> halls_walk, halls_still;
+  const auto a = bias_path(5, rw, 20000, &halls_walk);
+  double s_d = 0.0;
+  for (std::size_t i = 1; i < a.size(); ++i) s_d += (a[i] - a[i - 1]) * (a[i] - a[i - 1]);
+  EXPECT_NEAR(std::sqrt(s_d / (a.size() - 1)), rw * std::sqrt(1 / 4000.0), 0.05 * rw * std::sqrt(1 / 4000.0));
+
+  // Deterministic: reading the stream again from the start repeats it exactly; another seed does not.
+  EXPECT_EQ(a, bias_path(5, rw, 20000));
+  EXPECT_NE(a, bias_path(6, rw, 20000));
+  // Zero: no walk at all; and the walk has its own random stream (the Halls do not change).
+  const auto still = bias_path(5, 0.0, 20000, &halls_still);
+  for (double b : still) ASSERT_EQ(b, 0.05);
+  EXPECT_EQ(halls_walk, halls_still);
+
+  // The white noise stream is untouched too: with noise on, the two readings differ by the walk alone.
+  MotorConfig motor;
+  auto cfg = offline(Kind::standstill);
+  cfg.noise_seed = 5;
+  cfg.imperfections.accel_bias_mps2 = 0.05;
+  SimSource white(motor, cfg);
+  cfg.imperfections.accel_bias_random_walk_mps2_per_sqrt_s = rw;
+  SimSource walking(motor, cfg);
+  RawSample s, w;
+  for (int k = 0; k < 4000; ++k) {
+    ASSERT_EQ(white.read(s), ReadStatus::ok);
+    ASSERT_EQ(walking.read(w), ReadStatus::ok);
+    EXPECT_NEAR(w.accel_mps2 - s.accel_mps2, walking.accel_bias_now_mps2() - 0.05, 1e-15);
+  }
+  // A source that starts later starts its walk at its own first sample.
+  SimSource later(motor, cfg, 1.0);
+  ASSERT_EQ(later.read(s), ReadStatus::ok);
+  EXPECT_EQ(later.accel_bias_now_mps2(), 0.05);
+}
+
+TEST(SimSource, FrameMotionSeenByTheAccelerometersNotTheHalls) {
+  const MotorConfig motor = exact_motor();
+  auto cfg = offline(Kind::multisine);
+  cfg.imperfections.accel_delay_s = 250e-6;
+  SimSource still(motor, cfg);  // frame at rest, no frame accelerometer
+  auto& im = cfg.imperfections;
+  im.frame_reaction_ratio = -0.02;
+  im.frame_vibration_mps2 = 0.03;
+  im.frame_vibration_hz = 35.0;
+  im.frame_accelerometer = true;
+  SimSource src(motor, cfg);
+  ASSERT_TRUE(src.ok() && still.ok()) << src.last_error();
+  RawSample s, q;
+  for (int n = 0; n < 8000; ++n) {
+    ASSERT_EQ(src.read(s), ReadStatus::ok);
+    ASSERT_EQ(still.read(q), ReadStatus::ok);
+    const double td = n / 4000.0 - 250e-6;
+    const double a = src.profile().at(td).acceleration_mps2;
+    const double frame = -0.02 * a + 0.03 * std::sin(2 * M_PI * 35.0 * td);
+    EXPECT_NEAR(src.frame_acceleration(td), frame, 1e-12);
+    // The moving accelerometer is inertial: carriage (relative) plus frame.
+    EXPECT_NEAR(s.accel_mps2, a + frame, 1e-12) << n;
+    ASSERT_TRUE(s.accel_base_valid);
+    EXPECT_NEAR(s.accel_base_mps2, frame, 1e-12) << n;
+    // Zero: the frame is still and there is no second accelerometer.
+    EXPECT_EQ(q.accel_mps2, a);
+    EXPECT_FALSE(q.accel_base_valid);
+    EXPECT_EQ(still.frame_acceleration(td), 0.0);
+    // The Halls and the truth are relative to the frame, which carries the magnets.
+    EXPECT_EQ(s.hall_v, q.hall_v);
+    EXPECT_EQ(src.truth()->position_m, still.truth()->position_m);
+    EXPECT_EQ(src.truth()->acceleration_mps2, still.truth()->acceleration_mps2);
+  }
+}
+
+/// Least-squares fit of y = m + c sin(w t) + d cos(w t) over whole periods (the basis is
+/// then orthogonal), and the residual std.
+struct SineFit {
+  double mean = 0.0, sin_amp = 0.0, cos_amp = 0.0, resid_std = 0.0;
+};
+SineFit fit_sine(const std::vector<double>& y, double w, double rate) {
+  SineFit f;
+  const double n = static_cast<double>(y.size());
+  for (std::size_t k = 0; k < y.size(); ++k) {
+    const double t = k / rate;
+    f.mean += y[k] / n;
+    f.sin_amp += 2.0 * y[k] * std::sin(w * t) / n;
+    f.cos_amp += 2.0 * y[k] * std::cos(w * t) / n;
+  }
+  double r2 = 0.0;
+  for (std::size_t k = 0; k < y.size(); ++k) {
+    const double t = k / rate;
+    const double r = y[k] - f.mean - f.sin_amp * std::sin(w * t) - f.cos_amp * std::cos(w * t);
+    r2 += r * r;
+  }
+  f.resid_std = std::sqrt(r2 / n);
+  return f;
+}
+
+TEST(SimSource, FrameVibrationVisibleThroughTheNoise) {
+  MotorConfig motor;  // 0.02 m/s^2 white noise on both accelerometers
+  auto cfg = offline(Kind::standstill);
+  auto& im = cfg.imperfections;
+  im.accel_bias_mps2 = 0.05;
+  im.frame_vibration_mps2 = 0.03;
+  im.frame_vibration_hz = 35.0;
+  im.frame_accelerometer = true;
+  SimSource src(motor, cfg);
+  ASSERT_TRUE(src.ok()) << src.last_error();
+  const int n = 8000;  // 2 s: 70 whole periods
+  std::vector<double> moving(n), base(n);
+  RawSample s;
+  for (int k = 0; k < n; ++k) {
+    ASSERT_EQ(src.read(s), ReadStatus::ok);
+    moving[static_cast<std::size_t>(k)] = s.accel_mps2;
+    base[static_cast<std::size_t>(k)] = s.accel_base_mps2;
+  }
+  const double w = 2 * M_PI * 35.0, se = 0.02 * std::sqrt(2.0 / n);
+  const SineFit fm = fit_sine(moving, w, 4000.0), fb = fit_sine(base, w, 4000.0);
+  EXPECT_NEAR(fm.sin_amp, 0.03, 5 * se);
+  EXPECT_NEAR(fm.cos_amp, 0.0, 5 * se);
+  EXPECT_NEAR(fm.mean, 0.05, 5 * 0.02 / std::sqrt(n));  // the moving one has the bias ...
+  EXPECT_NEAR(fb.sin_amp, 0.03, 5 * se);
+  EXPECT_NEAR(fb.cos_amp, 0.0, 5 * se);
+  EXPECT_NEAR(fb.mean, 0.0, 5 * 0.02 / std::sqrt(n));   // ... the frame one has none
+  EXPECT_NEAR(fm.resid_std, 0.02, 0.002);
+  EXPECT_NEAR(fb.resid_std, 0.02, 0.002);
+  // Independent noise: the residuals are uncorrelated.
+  double cross = 0.0;
+  for (int k = 0; k < n; ++k) {
+    const double t = k / 4000.0;
+    const auto u = static_cast<std::size_t>(k);
+    cross += (moving[u] - fm.mean - fm.sin_amp * std::sin(w * t) - fm.cos_amp * std::cos(w * t)) *
+             (base[u] - fb.mean - fb.sin_amp * std::sin(w * t) - fb.cos_amp * std::cos(w * t));
+  }
+  EXPECT_LT(std::abs(cross / n / (fm.resid_std * fb.resid_std)), 5.0 / std::sqrt(n));
+}
+
+TEST(SimSource, InvalidImperfectionsAreReported) {
+  MotorConfig motor;
+  auto bad = [&](auto set) {
+    SimConfig cfg = offline(Kind::standstill);
+    set(cfg.imperfections);
+    return SimSource::check(motor, cfg);
+  };
+  using IC = ve::sim::ImperfectionConfig;
+  EXPECT_NE(bad([](IC& i) { i.field_third_harmonic = 0.5; }).find("field_third_harmonic"), std::string::npos);
+  EXPECT_NE(bad([](IC& i) { i.coil_field_v_per_mps2 = std::nan(""); }).find("coil_field"), std::string::npos);
+  EXPECT_NE(bad([](IC& i) { i.accel_delay_s = -1e-4; }).find("accel_delay_s"), std::string::npos);
+  EXPECT_NE(bad([](IC& i) { i.accel_bias_random_walk_mps2_per_sqrt_s = -1.0; }).find("random_walk"),
+            std::string::npos);
+  EXPECT_NE(bad([](IC& i) { i.frame_vibration_hz = -35.0; }).find("frame_vibration_hz"), std::string::npos);
+  EXPECT_NE(bad([](IC& i) { i.frame_reaction_ratio = INFINITY; }).find("frame_reaction_ratio"), std::string::npos);
+  EXPECT_EQ(bad([](IC& i) {
+              i.field_third_harmonic = -0.3;
+              i.coil_field_v_per_mps2 = -0.002;
+              i.frame_reaction_ratio = 0.5;
+              i.frame_accelerometer = true;
+            }),
+            "");
 }
 
 TEST(SimSource, TimestampsSequenceAndDuration) {

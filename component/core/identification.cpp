@@ -1,0 +1,416 @@
+#include "identification.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+
+#include "fusion_filter.hpp"
+#include "hall_array.hpp"
+#include "table_builder.hpp"
+
+namespace ve::core {
+
+namespace {
+
+std::string fmt(const char* format, double a, double b = 0.0, double c = 0.0) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf, format, a, b, c);
+  return buf;
+}
+
+/// Kinematics of the reference for every sample of a segment.
+struct SegmentKinematics {
+  std::vector<double> v, a;
+  std::vector<char> valid;
+  double ts = 0.0;
+};
+
+/// Linear regression y = slope * x + intercept; false when x does not vary.
+struct Regression {
+  double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
+  long n = 0;
+  void add(double x, double y) {
+    sx += x;
+    sy += y;
+    sxx += x * x;
+    sxy += x * y;
+    syy += y * y;
+    ++n;
+  }
+  bool solve(double& slope, double& intercept, double& residual_rms) const {
+    if (n < 3) return false;
+    const double mx = sx / n, my = sy / n;
+    const double vxx = sxx / n - mx * mx;
+    if (!(vxx > 0.0)) return false;
+    const double vxy = sxy / n - mx * my;
+    const double vyy = syy / n - my * my;
+    slope = vxy / vxx;
+    intercept = my - slope * mx;
+    residual_rms = std::sqrt(std::max(0.0, vyy - slope * vxy));
+    return true;
+  }
+};
+
+bool in_range_reading(const MotorConfig& m, double y) {
+  return y > m.adc.min_v + m.hall.saturation_margin_v && y < m.adc.max_v - m.hall.saturation_margin_v;
+}
+
+/// Largest |slope| any sensor's table reaches: sensors are trusted only on the steep part.
+double max_table_slope(const HallTable& t) {
+  double best = 0.0;
+  for (int s = 0; s < t.sensors; ++s)
+    for (int k = 1; k < t.points - 1; ++k) {
+      const double d = (t.v[static_cast<std::size_t>(s) * t.points + k + 1] -
+                        t.v[static_cast<std::size_t>(s) * t.points + k - 1]) /
+                       (2.0 * t.step_m);
+      best = std::max(best, std::abs(d));
+    }
+  return best;
+}
+
+}  // namespace
+
+void differentiate(const std::vector<double>& x, double ts, int m, std::vector<double>& v, std::vector<double>& a,
+                   std::vector<char>& valid) {
+  const std::size_t n = x.size();
+  v.assign(n, 0.0);
+  a.assign(n, 0.0);
+  valid.assign(n, 0);
+  if (m < 1 || n < static_cast<std::size_t>(2 * m + 1)) return;
+  // Quadratic least squares over k = -m..m: c1 = sum k x / sum k^2,
+  // c2 = sum (k^2 - M) x / sum (k^2 - M)^2 with M the mean of k^2.
+  double s2 = 0.0;
+  for (int k = -m; k <= m; ++k) s2 += static_cast<double>(k) * k;
+  const double mean_k2 = s2 / (2 * m + 1);
+  double s4 = 0.0;
+  for (int k = -m; k <= m; ++k) s4 += (k * k - mean_k2) * (k * k - mean_k2);
+  for (std::size_t i = static_cast<std::size_t>(m); i + static_cast<std::size_t>(m) < n; ++i) {
+    double c1 = 0.0, c2 = 0.0;
+    const double x0 = x[i];  // subtract for precision: positions are ~1 m, steps ~1 um
+    for (int k = -m; k <= m; ++k) {
+      const double d = x[i + static_cast<std::size_t>(k)] - x0;
+      c1 += k * d;
+      c2 += (k * k - mean_k2) * d;
+    }
+    v[i] = c1 / s2 / ts;
+    a[i] = 2.0 * c2 / s4 / (ts * ts);
+    valid[i] = 1;
+  }
+}
+
+bool identify_with_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
+                             const IdentificationConfig& cfg, Calibration& out, IdentificationReport& rep,
+                             std::string& error) {
+  rep = IdentificationReport{};
+  const int nh = motor.hall.count;
+
+  // --- reference kinematics per segment ------------------------------------------
+  std::vector<SegmentKinematics> kin(segments.size());
+  long total = 0;
+  for (std::size_t g = 0; g < segments.size(); ++g) {
+    const auto& seg = segments[g];
+    if (seg.samples.size() != seg.reference_m.size()) {
+      error = "a segment has " + std::to_string(seg.samples.size()) + " samples but " +
+              std::to_string(seg.reference_m.size()) + " reference positions";
+      return false;
+    }
+    total += static_cast<long>(seg.samples.size());
+    double ts = motor.sample_period_s();
+    if (seg.samples.size() > 1)
+      ts = static_cast<double>(seg.samples.back().t_ns - seg.samples.front().t_ns) * 1e-9 /
+           static_cast<double>(seg.samples.size() - 1);
+    kin[g].ts = ts;
+    differentiate(seg.reference_m, ts, cfg.derivative_half_window, kin[g].v, kin[g].a, kin[g].valid);
+  }
+  if (total == 0) {
+    error = "the recording is empty";
+    return false;
+  }
+
+  auto is_sweep = [&](double v, double a) {
+    return std::abs(v) >= cfg.sweep_min_speed_mps && std::abs(v) <= cfg.sweep_max_speed_mps &&
+           std::abs(a) <= cfg.sweep_max_accel_mps2;
+  };
+
+  // --- 1. forward and backward tables -> Hall delay ---------------------------------
+  TableBuilder forward(motor, cfg.points_per_pitch), backward(motor, cfg.points_per_pitch);
+  double speed_sum_f = 0.0, speed_sum_b = 0.0;
+  for (std::size_t g = 0; g < segments.size(); ++g) {
+    const auto& seg = segments[g];
+    for (std::size_t i = 0; i < seg.samples.size(); ++i) {
+      if (!kin[g].valid[i] || !is_sweep(kin[g].v[i], kin[g].a[i])) continue;
+      if (kin[g].v[i] > 0) {
+        forward.add(seg.reference_m[i], seg.samples[i]);
+        speed_sum_f += kin[g].v[i];
+        ++rep.sweep_forward_samples;
+      } else {
+        backward.add(seg.reference_m[i], seg.samples[i]);
+        speed_sum_b -= kin[g].v[i];
+        ++rep.sweep_backward_samples;
+      }
+    }
+  }
+  if (rep.sweep_forward_samples < 1000 || rep.sweep_backward_samples < 1000) {
+    error = "the recording has " + std::to_string(rep.sweep_forward_samples) + " forward and " +
+            std::to_string(rep.sweep_backward_samples) + " backward samples at constant slow speed (" +
+            fmt("%.3f..%.3f m/s", cfg.sweep_min_speed_mps, cfg.sweep_max_speed_mps) +
+            "): it needs a slow pass over the whole travel in each direction";
+    return false;
+  }
+  // The ends of the travel are reached only while turning: partial tables, compared where both have data.
+  HallTable table_f, table_b;
+  std::string why;
+  forward.finish(table_f, why, true);
+  backward.finish(table_b, why, true);
+  const double vf = speed_sum_f / rep.sweep_forward_samples;
+  const double vb = speed_sum_b / rep.sweep_backward_samples;
+  rep.sweep_speed_mps = (speed_sum_f + speed_sum_b) / (rep.sweep_forward_samples + rep.sweep_backward_samples);
+
+  // Forward readings were taken at x - vf d, backward ones at x + vb d:
+  // Tf(x) - Tb(x) = -S(x) d (vf + vb). Least squares over the steep nodes.
+  double smax = 0.0;
+  for (int s = 0; s < nh; ++s)
+    for (int k = 1; k < table_f.points - 1; ++k) {
+      const std::size_t i = static_cast<std::size_t>(s) * table_f.points + k;
+      const double d = (table_f.v[i + 1] - table_f.v[i - 1]) / (2.0 * table_f.step_m);
+      if (std::isfinite(d)) smax = std::max(smax, std::abs(d));
+    }
+  double num = 0.0, den = 0.0;
+  for (int s = 0; s < nh; ++s) {
+    for (int k = 1; k < table_f.points - 1; ++k) {
+      const std::size_t i = static_cast<std::size_t>(s) * table_f.points + k;
+      const double mean = 0.5 * (table_f.v[i] + table_b.v[i]);
+      if (!std::isfinite(mean) || !std::isfinite(table_f.v[i - 1] + table_f.v[i + 1] + table_b.v[i - 1] + table_b.v[i + 1]))
+        continue;
+      if (!in_range_reading(motor, mean)) continue;
+      const double slope = 0.25 * ((table_f.v[i + 1] - table_f.v[i - 1]) + (table_b.v[i + 1] - table_b.v[i - 1])) /
+                           table_f.step_m;
+      if (std::abs(slope) < 0.3 * smax) continue;
+      num += slope * (table_f.v[i] - table_b.v[i]);
+      den += slope * slope;
+    }
+  }
+  if (!(den > 0.0)) {
+    error = "no sensor is out of saturation anywhere in the sweep: check the Hall wiring and the ADC range";
+    return false;
+  }
+  const double shift_m = -num / den;  // = d (vf + vb)
+  rep.forward_backward_shift_um = shift_m * 1e6;
+  const double hall_delay = shift_m / (vf + vb);
+  rep.hall_delay_s = hall_delay;
+
+  // --- 2. a first combined table, readings placed where the Halls saw them ----------
+  auto build_table = [&](double delay, double coil, HallTable& table) -> bool {
+    TableBuilder b(motor, cfg.points_per_pitch);
+    RawSample corrected;
+    for (std::size_t g = 0; g < segments.size(); ++g) {
+      const auto& seg = segments[g];
+      for (std::size_t i = 0; i < seg.samples.size(); ++i) {
+        if (!kin[g].valid[i] || std::abs(kin[g].v[i]) > cfg.sweep_max_speed_mps ||
+            std::abs(kin[g].a[i]) > cfg.table_max_accel_mps2)
+          continue;
+        corrected = seg.samples[i];
+        for (int s = 0; s < corrected.hall_count; ++s) corrected.hall_v[s] -= coil * kin[g].a[i];
+        b.add(seg.reference_m[i] - kin[g].v[i] * delay, corrected);
+      }
+    }
+    return b.finish(table, why);
+  };
+  HallTable table;
+  if (!build_table(hall_delay, 0.0, table)) {
+    error = why;
+    return false;
+  }
+
+  // --- 3. fast motion: coil field and accelerometer -----------------------------------
+  const double smax_table = max_table_slope(table);
+  Regression coil;
+  for (std::size_t g = 0; g < segments.size(); ++g) {
+    const auto& seg = segments[g];
+    for (std::size_t i = 0; i < seg.samples.size(); ++i) {
+      if (!kin[g].valid[i] || std::abs(kin[g].a[i]) < cfg.dynamic_min_accel_mps2) continue;
+      ++rep.dynamic_samples;
+      rep.dynamic_max_accel_mps2 = std::max(rep.dynamic_max_accel_mps2, std::abs(kin[g].a[i]));
+      const double xh = seg.reference_m[i] - kin[g].v[i] * hall_delay + 0.5 * hall_delay * hall_delay * kin[g].a[i];
+      double sum = 0.0;
+      int n = 0;
+      for (int s = 0; s < nh; ++s) {
+        const double y = seg.samples[i].hall_v[s];
+        if (!(seg.samples[i].hall_valid_mask >> s & 1u) || !in_range_reading(motor, y)) continue;
+        double t, slope;
+        table.evaluate(s, xh, t, slope);
+        if (std::abs(slope) < 0.3 * smax_table) continue;
+        sum += y - t;
+        ++n;
+      }
+      if (n > 0) coil.add(kin[g].a[i], sum / n);
+    }
+  }
+  double coil_field = 0.0;
+  const bool have_dynamic = rep.dynamic_samples >= cfg.dynamic_min_samples;
+  if (have_dynamic) {
+    double intercept, rms;
+    if (coil.solve(coil_field, intercept, rms)) rep.coil_field_v_per_mps2 = coil_field;
+    // With the coil field known, the readings at the ends of the sweep (where it
+    // turns) are corrected too.
+    if (std::abs(coil_field) > 0.0 && !build_table(hall_delay, coil_field, table)) {
+      error = why;
+      return false;
+    }
+  } else {
+    rep.problems.push_back(
+        "the recording has only " + std::to_string(rep.dynamic_samples) + " samples with |a| >= " +
+        fmt("%.1f", cfg.dynamic_min_accel_mps2) +
+        " m/s^2: the coil field and the accelerometer's scale and delay need fast motion (e.g. a few seconds of "
+        "multisine or point-to-point moves); they were left at their ideal values");
+  }
+
+  // Accelerometer: reading = scale * a(t - delay) + bias. Scan the delay; for each,
+  // a linear regression against the reference acceleration at the delayed instant.
+  bool frame_used = false;
+  for (const auto& seg : segments)
+    for (const auto& s : seg.samples) frame_used = frame_used || s.accel_base_valid;
+  rep.frame_accelerometer_used = frame_used;
+  double best_rms = std::numeric_limits<double>::infinity();
+  double best_delay = 0.0, best_scale = 1.0, best_bias = 0.0;
+  std::vector<double> scan_rms;
+  const double ts0 = kin.empty() ? motor.sample_period_s() : kin[0].ts;
+  const double step = ts0 / 10.0;
+  const int n_delays = static_cast<int>(std::floor(cfg.max_accel_delay_s / step)) + 1;
+  if (have_dynamic) {
+    for (int di = 0; di < n_delays; ++di) {
+      const double delay = di * step;
+      Regression r;
+      for (std::size_t g = 0; g < segments.size(); ++g) {
+        const auto& seg = segments[g];
+        const double shift = delay / kin[g].ts;
+        const auto whole = static_cast<std::size_t>(std::floor(shift));
+        const double frac = shift - static_cast<double>(whole);
+        for (std::size_t i = whole + 1; i < seg.samples.size(); ++i) {
+          const std::size_t j0 = i - whole, j1 = i - whole - 1;  // a(t - delay) between j1 and j0
+          if (!kin[g].valid[j0] || !kin[g].valid[j1] || !seg.samples[i].accel_valid) continue;
+          const double a = (1.0 - frac) * kin[g].a[j0] + frac * kin[g].a[j1];
+          double z = seg.samples[i].accel_mps2;
+          if (seg.samples[i].accel_base_valid) z -= seg.samples[i].accel_base_mps2;
+          r.add(a, z);
+        }
+      }
+      double scale, bias, rms;
+      if (!r.solve(scale, bias, rms)) continue;
+      scan_rms.push_back(rms);
+      if (rms < best_rms) {
+        best_rms = rms;
+        best_delay = delay;
+        best_scale = scale;
+        best_bias = bias;
+      }
+    }
+    // Parabolic refinement of the delay between the scan points.
+    const int bi = static_cast<int>(std::llround(best_delay / step));
+    if (bi > 0 && bi + 1 < static_cast<int>(scan_rms.size())) {
+      const double y0 = scan_rms[static_cast<std::size_t>(bi - 1)] * scan_rms[static_cast<std::size_t>(bi - 1)];
+      const double y1 = scan_rms[static_cast<std::size_t>(bi)] * scan_rms[static_cast<std::size_t>(bi)];
+      const double y2 = scan_rms[static_cast<std::size_t>(bi + 1)] * scan_rms[static_cast<std::size_t>(bi + 1)];
+      const double curv = y0 - 2.0 * y1 + y2;
+      if (curv > 0.0) best_delay += 0.5 * step * (y0 - y2) / curv;
+    }
+    rep.accel_scale = best_scale;
+    rep.accel_bias_mps2 = best_bias;
+    rep.accel_delay_s = best_delay;
+    rep.accel_fit_residual_mps2 = best_rms;
+  } else {
+    // Without fast motion only the bias can be had: the mean reading while still or slow.
+    Regression r;
+    for (std::size_t g = 0; g < segments.size(); ++g)
+      for (std::size_t i = 0; i < segments[g].samples.size(); ++i)
+        if (kin[g].valid[i] && segments[g].samples[i].accel_valid)
+          r.add(kin[g].a[i], segments[g].samples[i].accel_mps2 -
+                                 (segments[g].samples[i].accel_base_valid ? segments[g].samples[i].accel_base_mps2 : 0.0));
+    if (r.n > 0) rep.accel_bias_mps2 = r.sy / r.n - r.sx / r.n;
+  }
+
+  // --- 4. the result and how well it explains the recording ---------------------------
+  out.table = table;
+  out.model.hall_delay_s = std::max(0.0, hall_delay);
+  out.model.coil_field_v_per_mps2 = rep.coil_field_v_per_mps2;
+  out.model.accel_delay_s = rep.accel_delay_s;
+  out.model.accel_bias_mps2 = rep.accel_bias_mps2;
+  out.model.accel_scale = rep.accel_scale;
+  out.info.motor = motor.name;
+  out.info.hall_count = nh;
+  out.info.magnet_pitch_m = motor.magnet_pitch_m;
+  out.info.method = "reference";
+
+  // Table residual over the sweep.
+  {
+    double sum = 0.0;
+    long n = 0;
+    for (std::size_t g = 0; g < segments.size(); ++g) {
+      const auto& seg = segments[g];
+      for (std::size_t i = 0; i < seg.samples.size(); i += 7) {  // a subsample is plenty
+        if (!kin[g].valid[i] || !is_sweep(kin[g].v[i], kin[g].a[i])) continue;
+        const double xh = seg.reference_m[i] - kin[g].v[i] * out.model.hall_delay_s;
+        for (int s = 0; s < nh; ++s) {
+          const double y = seg.samples[i].hall_v[s];
+          if (!(seg.samples[i].hall_valid_mask >> s & 1u) || !in_range_reading(motor, y)) continue;
+          const double r = y - table.value(s, xh);
+          sum += r * r;
+          ++n;
+        }
+      }
+    }
+    rep.table_residual_mv = n > 0 ? std::sqrt(sum / n) * 1e3 : 0.0;
+  }
+  // Hall position against the reference in fast motion, with and without compensation.
+  if (have_dynamic) {
+    HallArray array(motor, table);
+    double sum_c = 0.0, sum_u = 0.0;
+    long n = 0;
+    for (std::size_t g = 0; g < segments.size(); ++g) {
+      const auto& seg = segments[g];
+      for (std::size_t i = 0; i < seg.samples.size(); ++i) {
+        if (!kin[g].valid[i] || std::abs(kin[g].a[i]) < cfg.dynamic_min_accel_mps2) continue;
+        const double x = seg.reference_m[i];
+        const double xh = x - kin[g].v[i] * out.model.hall_delay_s;
+        const HallFix c = array.solve(seg.samples[i], xh, out.model.coil_field_v_per_mps2 * kin[g].a[i]);
+        const HallFix u = array.solve(seg.samples[i], x, 0.0);
+        if (!c.ok || !u.ok) continue;
+        sum_c += (c.position_m - xh) * (c.position_m - xh);
+        sum_u += (u.position_m - x) * (u.position_m - x);
+        ++n;
+      }
+    }
+    if (n > 0) {
+      rep.position_residual_um = std::sqrt(sum_c / n) * 1e6;
+      rep.position_residual_uncompensated_um = std::sqrt(sum_u / n) * 1e6;
+    }
+  }
+
+  // Verdict.
+  const double noise_mv = std::sqrt(motor.hall.noise_v * motor.hall.noise_v + motor.adc.lsb_v() * motor.adc.lsb_v() / 12.0) * 1e3;
+  if (rep.table_residual_mv > 2.0 * noise_mv)
+    rep.problems.push_back(fmt("the readings scatter %.2f mV about the table, more than twice the sensor noise "
+                               "(%.2f mV): noisy sensors, a loose magnet track or a reference that slips",
+                               rep.table_residual_mv, noise_mv));
+  if (hall_delay < -5e-6 || hall_delay > 1e-3)
+    rep.problems.push_back(fmt("the Hall delay came out as %.1f us, outside 0..1000 us: the reference and the "
+                               "Halls are not sampled together",
+                               hall_delay * 1e6));
+  if (have_dynamic) {
+    if (rep.accel_scale < 0.8 || rep.accel_scale > 1.2)
+      rep.problems.push_back(fmt("the accelerometer scale is %.3f: wrong sensitivity or axis in the configuration",
+                                 rep.accel_scale));
+    if (rep.accel_delay_s > (FusionFilter::kMaxAccelDelaySamples) * ts0)
+      rep.problems.push_back(fmt("the accelerometer lags by %.0f us; the estimator compensates at most %.0f us",
+                                 rep.accel_delay_s * 1e6, FusionFilter::kMaxAccelDelaySamples * ts0 * 1e6));
+    if (rep.position_residual_um > 1.0)
+      rep.problems.push_back(fmt("in fast motion the Hall position stays %.2f um RMS off the reference after "
+                                 "compensation: more than the 1 um this calibration aims for",
+                                 rep.position_residual_um));
+  }
+  rep.good = rep.problems.empty();
+  return true;
+}
+
+}  // namespace ve::core

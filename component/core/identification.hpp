@@ -1,0 +1,83 @@
+// Calibration with a reference ruler: from recorded samples and the reference
+// position of each, identify everything the estimator needs to know about one
+// motor and its sensors:
+//  - each Hall sensor's output over the whole travel (the table), from slow
+//    constant-speed passes in both directions;
+//  - the Hall delay: forward and backward passes disagree by 2 v d;
+//  - the coil field: a common-mode Hall offset proportional to the acceleration,
+//    from fast motion;
+//  - the accelerometer's scale, bias and delay, by regression against the
+//    reference's own acceleration.
+// Pure computation on vectors held in memory; no I/O.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "hall_table.hpp"
+#include "motor.hpp"
+#include "sample.hpp"
+
+namespace ve::core {
+
+/// One contiguous recording (uniform sampling, no gaps) with a reference position per sample.
+struct ReferenceSegment {
+  std::vector<RawSample> samples;
+  std::vector<double> reference_m;
+};
+
+/// What the identification needs of the motion, and how it judges the result.
+struct IdentificationConfig {
+  /// Constant-speed samples: |v| in [min, max] and |a| below the limit go into the table.
+  double sweep_min_speed_mps = 0.002;
+  double sweep_max_speed_mps = 0.1;
+  double sweep_max_accel_mps2 = 0.05;
+  /// The final table takes every slow sample (|v| up to sweep_max_speed_mps) with
+  /// |a| up to this, turnarounds included, corrected for the coil field.
+  double table_max_accel_mps2 = 2.0;
+  /// Samples with |a| above this identify the coil field and the accelerometer.
+  double dynamic_min_accel_mps2 = 1.0;
+  /// Fewest such samples for a usable identification (0.25 s at 4 kHz).
+  int dynamic_min_samples = 1000;
+  /// Half-width of the Savitzky-Golay window that differentiates the reference [samples].
+  int derivative_half_window = 20;
+  /// Largest accelerometer delay searched [s].
+  double max_accel_delay_s = 1e-3;
+  int points_per_pitch = 256;
+};
+
+struct IdentificationReport {
+  int sweep_forward_samples = 0;
+  int sweep_backward_samples = 0;
+  double sweep_speed_mps = 0.0;          ///< mean |v| of the table samples
+  double hall_delay_s = 0.0;
+  double forward_backward_shift_um = 0.0;  ///< forward minus backward table, as a position shift (= 2 v d)
+  int dynamic_samples = 0;
+  double dynamic_max_accel_mps2 = 0.0;
+  double coil_field_v_per_mps2 = 0.0;
+  double accel_scale = 1.0;
+  double accel_bias_mps2 = 0.0;
+  double accel_delay_s = 0.0;
+  double accel_fit_residual_mps2 = 0.0;  ///< RMS of the accelerometer after the fit
+  bool frame_accelerometer_used = false;
+  double table_residual_mv = 0.0;        ///< RMS of the readings about the final table (sweep, in range)
+  double position_residual_um = 0.0;     ///< RMS of the Hall position about the reference (fast motion, compensated)
+  double position_residual_uncompensated_um = 0.0;  ///< the same without delay and coil-field compensation
+  bool good = false;
+  std::vector<std::string> problems;     ///< why the result is not good, in words a commissioning engineer acts on
+};
+
+/// Identifies table and sensor model. False (with `error`) when the recording
+/// cannot give a result at all (e.g. the sweep does not cover the travel);
+/// otherwise true, with report.good telling whether the result can be trusted.
+bool identify_with_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
+                             const IdentificationConfig& config, Calibration& out, IdentificationReport& report,
+                             std::string& error);
+
+/// Velocity and acceleration of a uniformly sampled position by a quadratic
+/// Savitzky-Golay fit over 2 * half_window + 1 samples; `valid` is false within
+/// half a window of the ends.
+void differentiate(const std::vector<double>& x_m, double ts_s, int half_window, std::vector<double>& v_mps,
+                   std::vector<double>& a_mps2, std::vector<char>& valid);
+
+}  // namespace ve::core
