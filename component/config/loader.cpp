@@ -779,6 +779,17 @@ void read_motor(Map m, core::MotorConfig& motor) {
     f.get("initial_position_std_m", motor.filter.initial_position_std_m, positive());
     f.get("initial_velocity_std_mps", motor.filter.initial_velocity_std_mps, positive());
     f.get("initial_acceleration_std_mps2", motor.filter.initial_acceleration_std_mps2, positive());
+    f.get("snap_std_mps4", motor.filter.snap_std_mps4, non_negative());
+    f.get("accel_bias_std_mps2", motor.filter.accel_bias_std_mps2, non_negative());
+    f.get("accel_bias_random_walk_mps2_per_sqrt_s", motor.filter.accel_bias_random_walk_mps2_per_sqrt_s,
+          non_negative());
+    f.get("accel_scale_std", motor.filter.accel_scale_std, schema::in_range(0.0, 0.5));
+    f.get("accel_scale_random_walk_per_sqrt_s", motor.filter.accel_scale_random_walk_per_sqrt_s, non_negative());
+    f.get("accel_spike_mps2", motor.filter.accel_spike_mps2, positive());
+    f.get("hall_rejections_before_reset", motor.filter.hall_rejections_before_reset, schema::in_range(1, 1000));
+    f.get("vibration_random_walk_mps2_per_sqrt_s", motor.filter.vibration_random_walk_mps2_per_sqrt_s,
+          non_negative());
+    f.get("use_frame_accelerometer", motor.filter.use_frame_accelerometer);
   }
 }
 

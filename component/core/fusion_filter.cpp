@@ -5,43 +5,49 @@
 
 namespace ve::core {
 
-namespace {
-constexpr int tap_index(int k) { return k == 0 ? FusionFilter::kAcc : FusionFilter::kAcc1 + (k - 1); }
-}  // namespace
-
 FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const SensorModel& model)
     : ts_(ts_s), tuning_(tuning), model_(model) {
+  const double t = ts_s;
+  const bool jerk = tuning.snap_std_mps4 > 0.0;
   a_.setIdentity();
-  a_(kPos, kVel) = ts_s;
-  a_(kPos, kAcc) = 0.5 * ts_s * ts_s;
-  a_(kVel, kAcc) = ts_s;
-  // Delay line: each tap takes the value of the newer one.
-  a_(kAcc1, kAcc1) = 0.0;
-  a_(kAcc2, kAcc2) = 0.0;
-  a_(kAcc3, kAcc3) = 0.0;
-  a_(kAcc1, kAcc) = 1.0;
-  a_(kAcc2, kAcc1) = 1.0;
-  a_(kAcc3, kAcc2) = 1.0;
+  a_(kPos, kVel) = t;
+  a_(kPos, kAcc) = t * t / 2.0;
+  a_(kVel, kAcc) = t;
+  if (jerk) {
+    a_(kPos, kJerk) = t * t * t / 6.0;
+    a_(kVel, kJerk) = t * t / 2.0;
+    a_(kAcc, kJerk) = t;
+  }
+  vibration_ = model.frame_vibration_hz > 0.0;
+  if (vibration_) {
+    // The in-phase and quadrature parts of a sinusoid rotate by w Ts per sample.
+    const double w = 2.0 * M_PI * model.frame_vibration_hz * t;
+    a_(kVibIn, kVibIn) = std::cos(w);
+    a_(kVibIn, kVibQuad) = -std::sin(w);
+    a_(kVibQuad, kVibIn) = std::sin(w);
+    a_(kVibQuad, kVibQuad) = std::cos(w);
+  }
 
   q_.setZero();
-  const double da = tuning.jerk_std_mps3 * ts_s;
+  const double da = tuning.jerk_std_mps3 * t;
   q_(kAcc, kAcc) = da * da;
-  q_(kBias, kBias) = tuning.accel_bias_random_walk_mps2_per_sqrt_s * tuning.accel_bias_random_walk_mps2_per_sqrt_s * ts_s;
-  q_(kScale, kScale) = tuning.accel_scale_random_walk_per_sqrt_s * tuning.accel_scale_random_walk_per_sqrt_s * ts_s;
+  if (jerk) {
+    const double dj = tuning.snap_std_mps4 * t;
+    q_(kJerk, kJerk) = dj * dj;
+  }
+  q_(kBias, kBias) = tuning.accel_bias_random_walk_mps2_per_sqrt_s * tuning.accel_bias_random_walk_mps2_per_sqrt_s * t;
+  q_(kScale, kScale) = tuning.accel_scale_random_walk_per_sqrt_s * tuning.accel_scale_random_walk_per_sqrt_s * t;
+  if (vibration_) {
+    const double dv = tuning.vibration_random_walk_mps2_per_sqrt_s * tuning.vibration_random_walk_mps2_per_sqrt_s * t;
+    q_(kVibIn, kVibIn) = dv;
+    q_(kVibQuad, kVibQuad) = dv;
+  }
 
-  // x(t - d) = x - d v + d^2/2 a (the jerk term is below a nanometre for d < 100 us).
   const double d = model.hall_delay_s;
   h_hall_(kPos) = 1.0;
   h_hall_(kVel) = -d;
-  h_hall_(kAcc) = 0.5 * d * d;
-
-  double delay_samples = std::max(0.0, model.accel_delay_s / ts_s);
-  if (delay_samples > kMaxAccelDelaySamples) {
-    delay_samples = kMaxAccelDelaySamples;
-    accel_delay_clipped_ = true;
-  }
-  accel_tap_ = std::min(static_cast<int>(delay_samples), kMaxAccelDelaySamples - 1);
-  accel_frac_ = delay_samples - accel_tap_;
+  h_hall_(kAcc) = d * d / 2.0;
+  h_hall_(kJerk) = jerk ? -d * d * d / 6.0 : 0.0;
 }
 
 void FusionFilter::reset(double position_m, double position_var_m2, double accel_reading_mps2, bool accel_valid) {
@@ -50,20 +56,20 @@ void FusionFilter::reset(double position_m, double position_var_m2, double accel
   const double a0 = accel_valid ? (accel_reading_mps2 - model_.accel_bias_mps2) / model_.accel_scale : 0.0;
   x_(kPos) = position_m;
   x_(kAcc) = a0;
-  x_(kAcc1) = a0;
-  x_(kAcc2) = a0;
-  x_(kAcc3) = a0;
   x_(kBias) = model_.accel_bias_mps2;
   x_(kScale) = model_.accel_scale;
   p_(kPos, kPos) = position_var_m2;
   p_(kVel, kVel) = tuning_.initial_velocity_std_mps * tuning_.initial_velocity_std_mps;
   const double sa = accel_valid ? tuning_.accel_bias_std_mps2 + 0.05 : tuning_.initial_acceleration_std_mps2;
-  for (int i : {kAcc, kAcc1, kAcc2, kAcc3}) p_(i, i) = sa * sa;
-  // The taps start as one value: fully correlated.
-  for (int i : {kAcc, kAcc1, kAcc2, kAcc3})
-    for (int j : {kAcc, kAcc1, kAcc2, kAcc3}) p_(i, j) = sa * sa;
+  p_(kAcc, kAcc) = sa * sa;
+  if (tuning_.snap_std_mps4 > 0.0) p_(kJerk, kJerk) = 100.0 * 100.0;  // [m/s^3]^2: unknown at start
   p_(kBias, kBias) = tuning_.accel_bias_std_mps2 * tuning_.accel_bias_std_mps2;
   p_(kScale, kScale) = tuning_.accel_scale_std * tuning_.accel_scale_std;
+  if (vibration_) {
+    const double sv = std::max(model_.frame_vibration_mps2, 0.01);
+    p_(kVibIn, kVibIn) = sv * sv;
+    p_(kVibQuad, kVibQuad) = sv * sv;
+  }
 }
 
 void FusionFilter::predict() {
@@ -74,7 +80,7 @@ void FusionFilter::predict() {
 void FusionFilter::inflate(double position_var_m2, double velocity_var, double acceleration_var) {
   p_(kPos, kPos) += position_var_m2;
   p_(kVel, kVel) += velocity_var;
-  for (int i : {kAcc, kAcc1, kAcc2, kAcc3}) p_(i, i) += acceleration_var;
+  p_(kAcc, kAcc) += acceleration_var;
 }
 
 double FusionFilter::scalar_update(const Row& h, double innovation, double r, double gate_sigma, bool& applied) {
@@ -95,18 +101,23 @@ double FusionFilter::update_hall(double z_m, double r_m2, double gate_sigma, boo
 }
 
 double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bool& applied) {
-  // Reading = scale * a(t - delay) + bias, with a(t - delay) interpolated between
-  // two taps of the delay line. Linearised about the current scale (EKF).
-  const int i0 = tap_index(accel_tap_);
-  const int i1 = tap_index(accel_tap_ + 1);
-  const double a_delayed = (1.0 - accel_frac_) * x_(i0) + accel_frac_ * x_(i1);
+  // Reading = scale * a(t - delay) + bias + vibration, a(t - delay) = a - delay j.
+  // Linearised about the current scale (an EKF step).
+  const double d = model_.accel_delay_s;
+  const double a_delayed = x_(kAcc) - d * x_(kJerk);
   const double scale = x_(kScale);
   Row h = Row::Zero();
-  h(i0) = scale * (1.0 - accel_frac_);
-  h(i1) += scale * accel_frac_;
+  h(kAcc) = scale;
+  h(kJerk) = -scale * d;
   h(kBias) = 1.0;
   h(kScale) = a_delayed;
-  return scalar_update(h, z_mps2 - (scale * a_delayed + x_(kBias)), r, gate_sigma, applied);
+  if (vibration_) h(kVibIn) = 1.0;
+  const double predicted = scale * a_delayed + x_(kBias) + (vibration_ ? x_(kVibIn) : 0.0);
+  return scalar_update(h, z_mps2 - predicted, r, gate_sigma, applied);
+}
+
+double FusionFilter::vibration_amplitude_mps2() const {
+  return vibration_ ? std::hypot(x_(kVibIn), x_(kVibQuad)) : 0.0;
 }
 
 }  // namespace ve::core

@@ -69,6 +69,78 @@ double max_table_slope(const HallTable& t) {
   return best;
 }
 
+/// Reference acceleration at t_i - delay, linearly interpolated; false near the ends.
+bool delayed_accel(const SegmentKinematics& k, std::size_t i, double delay, double& a) {
+  const double shift = delay / k.ts;
+  const auto whole = static_cast<std::size_t>(std::floor(shift));
+  const double frac = shift - static_cast<double>(whole);
+  if (i < whole + 1) return false;
+  const std::size_t j0 = i - whole, j1 = i - whole - 1;
+  if (!k.valid[j0] || !k.valid[j1]) return false;
+  a = (1.0 - frac) * k.a[j0] + frac * k.a[j1];
+  return true;
+}
+
+/// Looks for a sinusoid in what the accelerometer reads beyond the carriage's own
+/// acceleration: the frame vibrating. Periodogram of the fit residual over a
+/// stretch of the recording; a line well above the noise floor is reported.
+void find_vibration(const std::vector<ReferenceSegment>& segments, const std::vector<SegmentKinematics>& kin,
+                    double scale, double bias, double delay, const IdentificationConfig& cfg,
+                    IdentificationReport& rep) {
+  // The longest segment, at most vibration_window_s of it.
+  std::size_t g = 0;
+  for (std::size_t i = 1; i < segments.size(); ++i)
+    if (segments[i].samples.size() > segments[g].samples.size()) g = i;
+  const auto& seg = segments[g];
+  const auto& k = kin[g];
+  std::vector<double> t, r;
+  const auto max_n = static_cast<std::size_t>(cfg.vibration_window_s / k.ts);
+  for (std::size_t i = 0; i < seg.samples.size() && r.size() < max_n; ++i) {
+    double a;
+    if (!seg.samples[i].accel_valid || !delayed_accel(k, i, delay, a)) continue;
+    double z = seg.samples[i].accel_mps2;
+    if (seg.samples[i].accel_base_valid) z -= seg.samples[i].accel_base_mps2;
+    t.push_back(static_cast<double>(seg.samples[i].t_ns - seg.samples.front().t_ns) * 1e-9);
+    r.push_back(z - scale * a - bias);
+  }
+  if (r.size() < 1000) return;
+  const double n = static_cast<double>(r.size());
+  const double fmax = std::min(cfg.vibration_max_hz, 0.4 / k.ts);
+  std::vector<double> amp;
+  std::vector<double> freq;
+  for (double f = cfg.vibration_min_hz; f <= fmax; f += cfg.vibration_step_hz) {
+    // Goertzel-like direct sums; cos/sin by rotation to keep it cheap.
+    const double w = 2.0 * M_PI * f * k.ts;
+    const double cw = std::cos(w), sw = std::sin(w);
+    double c = 1.0, s = 0.0, sum_c = 0.0, sum_s = 0.0;
+    for (std::size_t i = 0; i < r.size(); ++i) {
+      sum_c += r[i] * c;
+      sum_s += r[i] * s;
+      const double c2 = c * cw - s * sw;
+      s = s * cw + c * sw;
+      c = c2;
+    }
+    amp.push_back(2.0 * std::hypot(sum_c, sum_s) / n);
+    freq.push_back(f);
+  }
+  std::size_t best = 0;
+  for (std::size_t i = 1; i < amp.size(); ++i)
+    if (amp[i] > amp[best]) best = i;
+  std::vector<double> sorted = amp;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
+  const double floor = sorted[sorted.size() / 2];
+  rep.vibration_floor_mps2 = floor;
+  if (amp[best] < cfg.vibration_min_ratio * floor || amp[best] < cfg.vibration_min_mps2) return;
+  double f = freq[best];
+  if (best > 0 && best + 1 < amp.size()) {
+    const double y0 = amp[best - 1], y1 = amp[best], y2 = amp[best + 1];
+    const double curv = y0 - 2.0 * y1 + y2;
+    if (curv < 0.0) f += 0.5 * cfg.vibration_step_hz * (y0 - y2) / curv;
+  }
+  rep.vibration_hz = f;
+  rep.vibration_mps2 = amp[best];
+}
+
 }  // namespace
 
 void differentiate(const std::vector<double>& x, double ts, int m, std::vector<double>& v, std::vector<double>& a,
@@ -319,6 +391,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     rep.accel_bias_mps2 = best_bias;
     rep.accel_delay_s = best_delay;
     rep.accel_fit_residual_mps2 = best_rms;
+    find_vibration(segments, kin, best_scale, best_bias, best_delay, cfg, rep);
   } else {
     // Without fast motion only the bias can be had: the mean reading while still or slow.
     Regression r;
@@ -337,6 +410,8 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   out.model.accel_delay_s = rep.accel_delay_s;
   out.model.accel_bias_mps2 = rep.accel_bias_mps2;
   out.model.accel_scale = rep.accel_scale;
+  out.model.frame_vibration_hz = rep.vibration_hz;
+  out.model.frame_vibration_mps2 = rep.vibration_mps2;
   out.info.motor = motor.name;
   out.info.hall_count = nh;
   out.info.magnet_pitch_m = motor.magnet_pitch_m;
@@ -401,9 +476,10 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     if (rep.accel_scale < 0.8 || rep.accel_scale > 1.2)
       rep.problems.push_back(fmt("the accelerometer scale is %.3f: wrong sensitivity or axis in the configuration",
                                  rep.accel_scale));
-    if (rep.accel_delay_s > (FusionFilter::kMaxAccelDelaySamples) * ts0)
-      rep.problems.push_back(fmt("the accelerometer lags by %.0f us; the estimator compensates at most %.0f us",
-                                 rep.accel_delay_s * 1e6, FusionFilter::kMaxAccelDelaySamples * ts0 * 1e6));
+    if (rep.accel_delay_s > 0.95 * cfg.max_accel_delay_s)
+      rep.problems.push_back(fmt("the accelerometer lags by %.0f us or more, the end of the range searched: check "
+                                 "its filter settings and that it is sampled with the Halls",
+                                 rep.accel_delay_s * 1e6));
     if (rep.position_residual_um > 1.0)
       rep.problems.push_back(fmt("in fast motion the Hall position stays %.2f um RMS off the reference after "
                                  "compensation: more than the 1 um this calibration aims for",

@@ -44,6 +44,15 @@ struct IdentificationConfig {
   /// Largest accelerometer delay searched [s].
   double max_accel_delay_s = 1e-3;
   int points_per_pitch = 256;
+  /// Search for a frame vibration in the accelerometer: frequency range and step
+  /// [Hz], the stretch of recording used [s], and how far above the spectrum's
+  /// median (and above an absolute level) a line must stand to count.
+  double vibration_min_hz = 5.0;
+  double vibration_max_hz = 500.0;
+  double vibration_step_hz = 0.25;
+  double vibration_window_s = 8.0;
+  double vibration_min_ratio = 8.0;
+  double vibration_min_mps2 = 0.005;
 };
 
 struct IdentificationReport {
@@ -60,6 +69,9 @@ struct IdentificationReport {
   double accel_delay_s = 0.0;
   double accel_fit_residual_mps2 = 0.0;  ///< RMS of the accelerometer after the fit
   bool frame_accelerometer_used = false;
+  double vibration_hz = 0.0;             ///< frame vibration found in the accelerometer; 0 = none
+  double vibration_mps2 = 0.0;           ///< its amplitude
+  double vibration_floor_mps2 = 0.0;     ///< median of the residual spectrum
   double table_residual_mv = 0.0;        ///< RMS of the readings about the final table (sweep, in range)
   double position_residual_um = 0.0;     ///< RMS of the Hall position about the reference (fast motion, compensated)
   double position_residual_uncompensated_um = 0.0;  ///< the same without delay and coil-field compensation

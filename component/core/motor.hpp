@@ -53,13 +53,26 @@ struct SensorModel {
   /// the filter keeps estimating both).
   double accel_bias_mps2 = 0.0;
   double accel_scale = 1.0;
+  /// A vibration of the frame that the moving accelerometer feels and the Halls
+  /// do not (the track is on the frame): its frequency and amplitude as
+  /// identified. 0 Hz: none, or removed by a frame accelerometer.
+  double frame_vibration_hz = 0.0;
+  double frame_vibration_mps2 = 0.0;
 };
 
 /// Block K tuning (the paper's Kalman filter on [x, v, a], extended).
 struct FilterConfig {
   /// Process noise: white jerk driving the acceleration state, one sigma per
-  /// sample expressed as a jerk [m/s^3]. Q(2,2) = (jerk_std_mps3 * Ts)^2.
-  double jerk_std_mps3 = 60.0;
+  /// sample expressed as a jerk [m/s^3]: Q(a,a) = (jerk_std_mps3 * Ts)^2. With the
+  /// jerk state on (snap_std_mps4 > 0) this covers only what the jerk state does
+  /// not (steps of acceleration), so it can be small.
+  double jerk_std_mps3 = 20.0;
+  /// ... and white snap driving the jerk state: Q(j,j) = (snap_std_mps4 * Ts)^2.
+  /// The jerk state lets the filter extrapolate the acceleration over the
+  /// accelerometer's delay; 0 turns it off (the paper's model).
+  double snap_std_mps4 = 2.0e4;
+  /// How much the frame vibration's amplitude may change per second [m/s^2/sqrt(s)].
+  double vibration_random_walk_mps2_per_sqrt_s = 0.01;
   /// Floor added to the Hall position variance computed from sensor slopes [m].
   double hall_position_floor_m = 0.2e-6;
   /// Innovation gate on the Hall position, in standard deviations.

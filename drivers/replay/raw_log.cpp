@@ -111,21 +111,25 @@ Num parse_time_ns(const char* b, const char* e, std::int64_t& ns) {
   return Num::ok;
 }
 
-std::string format_t_ns(std::int64_t t_ns) {
+/// Writes t_ns as seconds with exactly 9 decimals into p (at least 32 bytes); returns the end.
+char* put_t_ns(char* p, std::int64_t t_ns) {
+  char* const limit = p + 32;
   const bool neg = t_ns < 0;
   const std::uint64_t a = neg ? 0 - static_cast<std::uint64_t>(t_ns) : static_cast<std::uint64_t>(t_ns);
-  char buf[40];
-  char* p = buf;
   if (neg) *p++ = '-';
-  p = std::to_chars(p, buf + sizeof buf, a / 1000000000ULL).ptr;
+  p = std::to_chars(p, limit, a / 1000000000ULL).ptr;  // at most 11 digits
   *p++ = '.';
   std::uint64_t frac = a % 1000000000ULL;
   for (int i = 8; i >= 0; --i) {
     p[i] = static_cast<char>('0' + frac % 10);
     frac /= 10;
   }
-  p += 9;
-  return std::string(buf, p);
+  return p + 9;
+}
+
+std::string format_t_ns(std::int64_t t_ns) {
+  char buf[32];
+  return std::string(buf, put_t_ns(buf, t_ns));
 }
 
 std::string num_message(Num r, const char* b, const char* e) {
@@ -810,7 +814,8 @@ bool RawLogWriter::write(const core::RawSample& s, const core::Truth* truth, con
   if (!finite) return fail("raw log writer: sample " + std::to_string(s.seq) + " holds a value that is not finite");
 
   const std::size_t mark = buf_.size();
-  buf_ += format_t_ns(s.t_ns);
+  char t_text[32];
+  buf_.append(t_text, put_t_ns(t_text, s.t_ns));
   bool ok = true;
   for (int i = 0; i < cols_.hall_count; ++i) {
     buf_ += ',';

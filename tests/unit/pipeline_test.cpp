@@ -98,8 +98,11 @@ TEST(PipelineIdealMotor, ConstantOneMetrePerSecondMeetsTheSpec) {
 
 TEST(PipelineIdealMotor, ConstantAccelerationAndMultisineAreTracked) {
   MotorConfig motor;
-  const Stats acc =
-      evaluate(motor, profile(MotionProfileConfig::Kind::constant_acceleration, 0.05, 0.0, 5.0), 0.05, 0.1, 0.5);
+  const SimConfig ca = profile(MotionProfileConfig::Kind::constant_acceleration, 0.05, 0.0, 5.0);
+  // Up to the end of the constant-acceleration phase (then it brakes with a step).
+  const auto ca_profile = ve::sim::MotionProfile::create(ca.profile, motor.travel_m);
+  ASSERT_TRUE(ca_profile);
+  const Stats acc = evaluate(motor, ca, 0.05, 0.1, ca_profile->steady_duration_s());
   print("constant 5 m/s^2", acc);
   SimConfig ms = profile(MotionProfileConfig::Kind::multisine, 0.5);
   ms.profile.max_velocity_mps = 2.0;

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <sstream>
 #include <string>
@@ -249,6 +250,32 @@ TEST(RawLog, WriterPrintsTheDocumentedFormat) {
             "# hall_count=2\n"
             "t_s,hall_0_v,hall_1_v,accel_mps2,ref_position_m\n"
             "1.500000001,,-0.500000,9.806650,0.012345679\n");
+}
+
+TEST(RawLog, TimeIsExactToTheNanosecond) {
+  TempDir dir;
+  const std::string path = dir.path("t.csv");
+  RawLogWriter w;
+  std::string error;
+  ASSERT_TRUE(w.open(path, {1, false, false, false}, {}, error)) << error;
+  const std::vector<std::int64_t> times = {-1500000001LL, -1LL, 0LL, 1LL, 999999999LL, 123456789012345678LL,
+                                           8999999999999999999LL};
+  for (std::int64_t t : times) ASSERT_TRUE(w.write(sample(t, 1), nullptr, nullptr)) << w.error();
+  EXPECT_FALSE(w.write(sample(std::numeric_limits<std::int64_t>::max(), 1), nullptr, nullptr));  // > 9e9 s
+  ASSERT_TRUE(w.close(error)) << error;
+  const std::string text = slurp(path);
+  EXPECT_NE(text.find("\n-1.500000001,"), std::string::npos) << text;
+  EXPECT_NE(text.find("\n-0.000000001,"), std::string::npos) << text;
+  EXPECT_NE(text.find("\n123456789.012345678,"), std::string::npos) << text;
+
+  RawLogReader r;
+  ASSERT_TRUE(r.open(path)) << all(r);
+  RawLogRow row;
+  for (std::int64_t t : times) {
+    ASSERT_EQ(r.next(row), Next::row) << all(r);
+    EXPECT_EQ(row.sample.t_ns, t);
+  }
+  EXPECT_EQ(r.next(row), Next::end);
 }
 
 TEST(RawLog, WriterRejectsWhatTheReaderWouldNotRead) {
