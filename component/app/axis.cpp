@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "config/calibration_file.hpp"
+#include "replay/replay_source.hpp"
 #include "sim/sim_source.hpp"
 
 namespace ve::app {
@@ -43,9 +44,21 @@ std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axi
       }
       return source;
     }
-    case config::DriverConfig::Kind::replay:
-      error = "axis '" + axis.name + "': the replay driver is not available in this build";
-      return nullptr;
+    case config::DriverConfig::Kind::replay: {
+      auto source = std::make_unique<replay::ReplaySource>(
+          axis.driver.replay_path, axis.driver.replay_realtime && timing == SourceTiming::as_configured);
+      if (!source->ok()) {
+        error = source->last_error();
+        return nullptr;
+      }
+      if (source->meta().hall_count != axis.motor.hall.count) {
+        error = axis.driver.replay_path + ": the log has " + std::to_string(source->meta().hall_count) +
+                " Hall columns but motor '" + axis.motor.name + "' has " + std::to_string(axis.motor.hall.count) +
+                " sensors";
+        return nullptr;
+      }
+      return source;
+    }
   }
   error = "axis '" + axis.name + "': unknown driver";
   return nullptr;

@@ -43,4 +43,24 @@ struct MonitorOptions {
 };
 int monitor_command(const MonitorOptions& options);
 
+struct RecordOptions {
+  std::string config;
+  std::string axis;            ///< "" = the first axis
+  std::string out;             ///< raw log v1 to write
+  double duration_s = 10.0;    ///< 0 = until the source ends or SIGINT/SIGTERM
+  bool fast = false;           ///< do not pace a simulated or replayed source in real time
+};
+int record_command(const RecordOptions& options);
+
+struct EvaluateOptions {
+  std::string config;
+  std::string axis;
+  std::string log;             ///< raw log v1 with truth columns
+  std::string calibration;     ///< overrides the axis' calibration file
+  std::string estimates;       ///< optional CSV of the estimates per sample
+  bool json = false;
+  double home_m = -1.0;        ///< overrides homing.position_m when >= 0
+};
+int evaluate_command(const EvaluateOptions& options);
+
 }  // namespace ve::app

@@ -53,6 +53,26 @@ int main(int argc, char** argv) {
   mon_cmd->add_option("--deadline-ms", mon.deadline_ms, "Requested deadline [ms] (default: twice the offered one)")
       ->check(CLI::NonNegativeNumber);
 
+  ve::app::RecordOptions rec;
+  auto* rec_cmd = app.add_subcommand("record", "Write an axis' raw sensor samples to a raw log v1 (CSV)");
+  rec_cmd->add_option("--config,-c", rec.config, "Machine file (default: the built-in simulator machine)");
+  rec_cmd->add_option("--axis,-a", rec.axis, "Axis name (default: the first)");
+  rec_cmd->add_option("--out,-o", rec.out, "Log file to write")->required();
+  rec_cmd->add_option("--duration", rec.duration_s, "Seconds to record (0: until the source ends or Ctrl-C)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  rec_cmd->add_flag("--fast", rec.fast, "Do not pace a simulated or replayed source in real time");
+
+  ve::app::EvaluateOptions ev;
+  auto* ev_cmd = app.add_subcommand("evaluate", "Run the estimator over a raw log and compare with its truth");
+  ev_cmd->add_option("--config,-c", ev.config, "Machine file (default: the built-in simulator machine)");
+  ev_cmd->add_option("--axis,-a", ev.axis, "Axis name (default: the first)");
+  ev_cmd->add_option("--log,-l", ev.log, "Raw log v1 with truth columns")->required();
+  ev_cmd->add_option("--calibration", ev.calibration, "Calibration file (default: the axis' own)");
+  ev_cmd->add_option("--estimates", ev.estimates, "Write the estimates per sample to this CSV");
+  ev_cmd->add_flag("--json", ev.json, "Print the statistics as JSON");
+  ev_cmd->add_option("--home", ev.home_m, "Start-up position hint [m] (default: the axis' homing.position_m)");
+
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%H:%M:%S.%e %^%-5l%$ %v");
@@ -62,6 +82,8 @@ int main(int argc, char** argv) {
     return ve::app::run_command(run);
   }
   if (*check_cmd) return ve::app::check_command(check);
+  if (*rec_cmd) return ve::app::record_command(rec);
+  if (*ev_cmd) return ve::app::evaluate_command(ev);
   if (*cal_cmd) return ve::app::calibrate_command(cal);
   if (*mon_cmd) {
     if (mon_domain >= 0) mon.domain = mon_domain;

@@ -119,6 +119,8 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     m.get("accel_delay_s", cal.model.accel_delay_s, schema::in_range(0.0, 0.01));
     m.get("accel_bias_mps2", cal.model.accel_bias_mps2, schema::in_range(-100.0, 100.0));
     m.get("accel_scale", cal.model.accel_scale, schema::in_range(0.5, 2.0));
+    m.get("frame_vibration_hz", cal.model.frame_vibration_hz, schema::in_range(0.0, 10000.0));
+    m.get("frame_vibration_mps2", cal.model.frame_vibration_mps2, schema::in_range(0.0, 1000.0));
   }
   const std::size_t before_table = errors.size();
   const Value table = root.required("table");
@@ -260,15 +262,18 @@ std::string format_calibration(const core::Calibration& cal) {
   out += "id: \"" + core::calibration_checksum(cal) + "\"   # checksum of the sensor model and the table\n";
   {
     const core::SensorModel& m = cal.model;
-    char buf[512];
+    char buf[1024];
     std::snprintf(buf, sizeof buf,
                   "sensor_model:   # identified by calibration; the estimator compensates these\n"
                   "  hall_delay_s: %.9f          # the Halls are sampled this long before the sample instant\n"
                   "  coil_field_v_per_mps2: %.9f # common-mode Hall offset per m/s^2 of acceleration (coil field)\n"
                   "  accel_delay_s: %.9f         # the accelerometer lags the sample instant by this\n"
                   "  accel_bias_mps2: %.7f       # reading = accel_scale * a + accel_bias_mps2\n"
-                  "  accel_scale: %.9f\n",
-                  m.hall_delay_s, m.coil_field_v_per_mps2, m.accel_delay_s, m.accel_bias_mps2, m.accel_scale);
+                  "  accel_scale: %.9f\n"
+                  "  frame_vibration_hz: %.6f    # a vibration of the frame the accelerometer feels (0: none)\n"
+                  "  frame_vibration_mps2: %.7f\n",
+                  m.hall_delay_s, m.coil_field_v_per_mps2, m.accel_delay_s, m.accel_bias_mps2, m.accel_scale,
+                  m.frame_vibration_hz, m.frame_vibration_mps2);
     out += buf;
   }
   out += "table:\n";

@@ -961,7 +961,8 @@ class MachineLoader {
     d.get_enum("type", drv.kind, {{"sim", DriverConfig::Kind::sim}, {"replay", DriverConfig::Kind::replay}});
     if (drv.kind == DriverConfig::Kind::replay) {
       const std::string why = "only used with type: sim";
-      for (const char* k : {"realtime", "noise_seed", "profile", "imperfections"}) d.reject(k, why);
+      for (const char* k : {"noise_seed", "profile", "imperfections"}) d.reject(k, why);
+      d.get("realtime", drv.replay_realtime);
       const Value log = d.required("log");
       if (log.present()) referenced_file(log, drv.replay_path);
       if (!drv.replay_path.empty()) drv.replay_path = files_.stored(drv.replay_path);

@@ -16,6 +16,7 @@ struct DriverConfig {
   Kind kind = Kind::sim;
   sim::SimConfig sim;       ///< kind == sim
   std::string replay_path;  ///< kind == replay: raw log (resolved path)
+  bool replay_realtime = true;  ///< kind == replay: pace the rows by their time stamps
 };
 
 /// Encoder-equivalent output scaling: counts = direction * position_m * counts_per_m + preset_counts.

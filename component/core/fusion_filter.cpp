@@ -65,6 +65,12 @@ void FusionFilter::reset(double position_m, double position_var_m2, double accel
   if (tuning_.snap_std_mps4 > 0.0) p_(kJerk, kJerk) = 100.0 * 100.0;  // [m/s^3]^2: unknown at start
   p_(kBias, kBias) = tuning_.accel_bias_std_mps2 * tuning_.accel_bias_std_mps2;
   p_(kScale, kScale) = tuning_.accel_scale_std * tuning_.accel_scale_std;
+  // The fix is where the carriage was hall_delay ago: x(t) = z + d v with v still
+  // unknown, so position and velocity start correlated (otherwise a start in
+  // motion would take the first fix for the present and misjudge the speed).
+  const double d = model_.hall_delay_s;
+  p_(kPos, kPos) += d * d * p_(kVel, kVel);
+  p_(kPos, kVel) = p_(kVel, kPos) = d * p_(kVel, kVel);
   if (vibration_) {
     const double sv = std::max(model_.frame_vibration_mps2, 0.01);
     p_(kVibIn, kVibIn) = sv * sv;

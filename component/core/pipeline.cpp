@@ -174,8 +174,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   if (status & (status::kAccelFault | (0xFFu << status::kHallFaultShift))) {
     status |= status::kSensorFault | status::kDegraded;
   }
+  // One rejected fix is a spike the prediction bridges; two in a row mean the
+  // prediction itself may be off, until the filter has followed the Halls again.
   if (initialised_ && out_.position_std_m < kValidPositionStdM && out_.velocity_std_mps < kValidVelocityStdMps &&
-      without_fix_in_row_ < cfg_.max_samples_without_fix / 2)
+      without_fix_in_row_ < cfg_.max_samples_without_fix / 2 && rejected_in_row_ < 2)
     status |= status::kValid;
   out_.status = status;
   return out_;
