@@ -339,11 +339,12 @@ TEST(ConfigLoader, ReplayDriverNeedsLogAndRejectsSimKeys) {
                               "    motor: m.yaml\n"        // 3
                               "    driver:\n"              // 4
                               "      type: replay\n"       // 5
-                              "      realtime: false\n");  // 6
+                              "      realtime: false\n"    // 6: pacing applies to replay too
+                              "      noise_seed: 3\n");    // 7
   const LoadResult r = load_machine_file(path);
   EXPECT_EQ(r.errors.size(), 2u) << to_string(r.errors);
   expect_error(r, path, 5, 7, "axes[0].driver.log", "missing required key 'log'");
-  expect_error(r, path, 6, 7, "axes[0].driver.realtime", "only used with type: sim");
+  expect_error(r, path, 7, 7, "axes[0].driver.noise_seed", "only used with type: sim");
 }
 
 TEST(ConfigLoader, DuplicateKeyIsAnError) {
