@@ -7,6 +7,7 @@
 #include <cmath>
 #include <map>
 
+#include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "core/error_stats.hpp"
 #include "core/identification.hpp"
@@ -155,6 +156,19 @@ TEST(RealisticCalibration, IdentifiesTheSimulatedSensorModel) {
   EXPECT_TRUE(f.report.frame_accelerometer_used);
   EXPECT_NEAR(f.cal.model.accel_scale, 1.0 + im.accel_scale_error, 1e-3);
   EXPECT_EQ(f.cal.model.frame_vibration_hz, 0.0) << "the frame accelerometer removes the vibration";
+}
+
+TEST(RealisticCalibration, ShippedCalibrationsAreWhatCalibrateProduces) {
+  // The calibration files in config/calibration come from `virtual-encoder
+  // calibrate` on these machines; the run is deterministic, so they must match.
+  for (const char* machine : {"sim-realistic.yaml", "sim-realistic-frame-accel.yaml"}) {
+    const Realistic& r = realistic(machine);
+    ASSERT_FALSE(r.axis.calibration_file.empty()) << machine;
+    const auto shipped = ve::config::load_calibration_file(r.axis.calibration_file, r.axis.motor);
+    ASSERT_TRUE(shipped.ok()) << ve::config::to_string(shipped.errors);
+    EXPECT_EQ(shipped.calibration.info.id, ve::core::calibration_checksum(r.cal))
+        << machine << ": regenerate " << r.axis.calibration_file << " with `virtual-encoder calibrate`";
+  }
 }
 
 TEST(RealisticCalibration, WithoutFastMotionSaysWhatIsMissing) {
