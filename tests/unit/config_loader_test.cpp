@@ -529,7 +529,9 @@ TEST(ConfigShipped, RealisticSimMachinesLoadClean) {
     ASSERT_EQ(r.config.axes.size(), 1u);
     const AxisConfig& x = r.config.axes[0];
     EXPECT_EQ(x.motor.name, "sim-12mm");
-    EXPECT_TRUE(x.calibration_file.empty());  // commented out until `calibrate` has written it
+    // Each ships with its calibration, made by `virtual-encoder calibrate`.
+    EXPECT_EQ(x.calibration_file, std::string(VE_SOURCE_DIR) + "/config/calibration/" +
+                                      (frame ? "sim-realistic-frame-accel-x.cal.yaml" : "sim-realistic-x.cal.yaml"));
     EXPECT_EQ(x.homing.mode, HomingConfig::Mode::startup_position);
     EXPECT_EQ(x.homing.position_m, 0.5);
     const sim::SimConfig& s = x.driver.sim;
