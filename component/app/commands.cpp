@@ -13,6 +13,7 @@
 #include <spdlog/spdlog.h>
 
 #include "axis.hpp"
+#include "calibration_log.hpp"
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "core/status.hpp"
@@ -254,8 +255,10 @@ int calibrate_command(const CalibrateOptions& options) {
     return 2;
   }
   const config::AxisConfig& axis = *found;
-  if (axis.driver.kind != config::DriverConfig::Kind::sim) {
-    std::fprintf(stderr, "axis '%s': calibration needs the simulator driver (it uses its reference position)\n",
+  if (options.log.empty() && axis.driver.kind != config::DriverConfig::Kind::sim) {
+    std::fprintf(stderr,
+                 "axis '%s': live calibration needs the simulator driver (its exact position is the reference); "
+                 "for a real machine, record the calibration motion with a reference ruler and pass --log\n",
                  axis.name.c_str());
     return 2;
   }
@@ -280,8 +283,13 @@ int calibrate_command(const CalibrateOptions& options) {
   run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
   std::vector<core::ReferenceSegment> segments;
   std::string error;
-  if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error,
-                                   [&](double f) { progress("recording", f); })) {
+  if (!options.log.empty()) {
+    if (!read_calibration_log(options.log, axis.motor.hall.count, segments, error)) {
+      std::fprintf(stderr, "%s\n", error.c_str());
+      return 2;
+    }
+  } else if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error,
+                                          [&](double f) { progress("recording", f); })) {
     std::fprintf(stderr, "\ncalibration run failed: %s\n", error.c_str());
     return 1;
   }

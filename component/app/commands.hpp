@@ -30,6 +30,7 @@ struct CalibrateOptions {
   double sweep_speed_mps = 0.02;
   double sweep_acceleration_mps2 = 0.5;
   bool force = false;          ///< write the calibration even when its verdict is poor
+  std::string log;             ///< raw log v1 with ref_position_m instead of a live simulator run
 };
 int calibrate_command(const CalibrateOptions& options);
 

@@ -42,6 +42,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.005, 0.1))
       ->capture_default_str();
   cal_cmd->add_flag("--force", cal.force, "Write the calibration even when its verdict is poor");
+  cal_cmd->add_option("--log", cal.log, "Calibrate from a raw log v1 with a ref_position_m column");
 
   ve::app::MonitorOptions mon;
   int mon_domain = -1;

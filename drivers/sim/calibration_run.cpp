@@ -1,5 +1,6 @@
 #include "sim/calibration_run.hpp"
 
+#include "sim/motion_profile.hpp"
 #include "sim/sim_source.hpp"
 
 namespace ve::sim {
@@ -56,6 +57,10 @@ bool record_calibration_run(const core::MotorConfig& motor, const SimConfig& bas
   dynamic.profile.max_m = 0.95 * motor.travel_m;
   dynamic.profile.max_velocity_mps = run.dynamic_max_velocity_mps;
   dynamic.profile.max_acceleration_mps2 = run.dynamic_max_acceleration_mps2;
+
+  // A short motor cannot hold the full multisine: lower its speed until it fits.
+  for (int i = 0; i < 20 && !MotionProfile::create(dynamic.profile, motor.travel_m); ++i)
+    dynamic.profile.max_velocity_mps *= 0.8;
 
   const double total = sweep_s + run.dynamic_duration_s;
   if (!record(motor, sweep, sweep_s, segments[0], error, progress, 0.0, sweep_s / total)) return false;

@@ -9,8 +9,13 @@
 #include <filesystem>
 #include <fstream>
 #include <mutex>
+#include <sstream>
 
 #include "app/dds_io.hpp"
+#include "config/calibration_file.hpp"
+#include "config/loader.hpp"
+#include "replay/raw_log.hpp"
+#include "sim/calibration_run.hpp"
 #include "core/status.hpp"
 #include "process.hpp"
 
@@ -141,6 +146,86 @@ TEST(Cli, CalibrateThenCheckThenRunPublishesCalibratedPositions) {
   EXPECT_EQ(run_cli({"check", "--config", machine.string()}, out, dir.path / "c2.log"), 1) << out;
   EXPECT_NE(out.find("x.cal.yaml"), std::string::npos) << out;
   EXPECT_NE(run_cli({"run", "--config", machine.string(), "--duration", "1"}, out, dir.path / "r2.log"), 0) << out;
+}
+
+}  // namespace
+
+namespace {
+
+TEST(Cli, CalibrateFromARecordedLogWithReference) {
+  TempDir dir;
+  // A short motor keeps the sweep (and the log) small.
+  std::ifstream in(motor_path());
+  std::stringstream motor_text;
+  motor_text << in.rdbuf();
+  std::string m = motor_text.str();
+  m.replace(m.find("motor: sim-12mm"), 15, "motor: short-12");
+  m.replace(m.find("travel_m: 1.0"), 13, "travel_m: 0.1");
+  write(dir.path / "short.yaml", m);
+  const fs::path machine = dir.path / "machine.yaml";
+  write(machine,
+        "axes:\n"
+        "  - name: x\n"
+        "    motor: short.yaml\n"
+        "    driver:\n"
+        "      type: sim\n"
+        "      profile: {type: standstill, start_m: 0.05, min_m: 0.005, max_m: 0.095}\n"
+        "      imperfections: {hall_delay_s: 20.0e-6, coil_field_v_per_mps2: 0.001, accel_bias_mps2: 0.05,\n"
+        "                      accel_delay_s: 250.0e-6, magnet_placement_std_m: 20.0e-6}\n"
+        "    homing: {mode: startup_position, position_m: 0.05}\n");
+  auto loaded = ve::config::load_machine_file(machine.string());
+  ASSERT_TRUE(loaded.ok()) << ve::config::to_string(loaded.errors);
+  const auto& axis = loaded.config.axes.at(0);
+
+  // The calibration motion, recorded as a commissioning engineer would: one log
+  // with the ruler's position, the two parts of the motion a second apart.
+  std::vector<ve::core::ReferenceSegment> segments;
+  std::string error;
+  ASSERT_TRUE(ve::sim::record_calibration_run(axis.motor, axis.driver.sim, {}, segments, error)) << error;
+  const fs::path log = dir.path / "calibration.csv";
+  {
+    ve::replay::RawLogWriter w;
+    ve::replay::RawLogWriter::Columns cols;
+    cols.hall_count = 4;
+    cols.reference = true;
+    ASSERT_TRUE(w.open(log.string(), cols, {{"sample_rate_hz", "4000"}}, error)) << error;
+    std::int64_t offset = 0;
+    for (const auto& seg : segments) {
+      const std::int64_t base = offset - seg.samples.front().t_ns;
+      for (std::size_t i = 0; i < seg.samples.size(); ++i) {
+        ve::core::RawSample s = seg.samples[i];
+        s.t_ns += base;
+        ASSERT_TRUE(w.write(s, nullptr, &seg.reference_m[i])) << w.error();
+      }
+      offset += seg.samples.back().t_ns - seg.samples.front().t_ns + 1000000000LL;
+    }
+    ASSERT_TRUE(w.close(error)) << error;
+  }
+
+  std::string out;
+  const fs::path cal = dir.path / "x.cal.yaml";
+  ASSERT_EQ(run_cli({"calibrate", "--config", machine.string(), "--log", log.string(), "--out", cal.string()}, out,
+                    dir.path / "cal.log"),
+            0)
+      << out;
+  EXPECT_NE(out.find("Verdict: GOOD"), std::string::npos) << out;
+  auto loaded_cal = ve::config::load_calibration_file(cal.string(), axis.motor);
+  ASSERT_TRUE(loaded_cal.ok()) << ve::config::to_string(loaded_cal.errors);
+  const auto& model = loaded_cal.calibration.model;
+  EXPECT_NEAR(model.hall_delay_s, 20e-6, 1e-6);
+  EXPECT_NEAR(model.coil_field_v_per_mps2, 0.001, 5e-5);
+  EXPECT_NEAR(model.accel_bias_mps2, 0.05, 3e-3);
+  EXPECT_NEAR(model.accel_delay_s, 250e-6, 20e-6);
+
+  // A log without a reference column is refused with the reason.
+  const fs::path no_ref = dir.path / "no_ref.csv";
+  write(no_ref, "# virtual-encoder raw log v1\nt_s,hall_0_v,hall_1_v,hall_2_v,hall_3_v,accel_mps2\n0,1,2,3,4,0\n");
+  EXPECT_EQ(run_cli({"calibrate", "--config", machine.string(), "--log", no_ref.string(), "--out", cal.string()}, out,
+                    dir.path / "cal2.log"),
+            2);
+  EXPECT_NE(out.find("ref_position_m"), std::string::npos) << out;
+  // ... and the calibration written before is untouched.
+  EXPECT_TRUE(ve::config::load_calibration_file(cal.string(), axis.motor).ok());
 }
 
 }  // namespace

@@ -1,0 +1,53 @@
+#include "calibration_log.hpp"
+
+#include "replay/replay_source.hpp"
+
+namespace ve::app {
+
+bool read_calibration_log(const std::string& path, int hall_count, std::vector<core::ReferenceSegment>& segments,
+                          std::string& error) {
+  replay::ReplaySource log(path, false);
+  if (!log.ok()) {
+    error = log.last_error();
+    return false;
+  }
+  if (!log.meta().has_reference) {
+    error = path + ": no ref_position_m column: calibration with a reference needs the ruler's position per sample";
+    return false;
+  }
+  if (log.meta().hall_count != hall_count) {
+    error = path + ": the log has " + std::to_string(log.meta().hall_count) + " Hall columns, the motor " +
+            std::to_string(hall_count);
+    return false;
+  }
+  segments.clear();
+  core::RawSample s;
+  std::int64_t last_t = 0;
+  std::int64_t period_ns = 0;
+  bool open = false;
+  drivers::ReadStatus st;
+  while ((st = log.read(s)) == drivers::ReadStatus::ok) {
+    double x = 0.0;
+    if (!log.reference_position(x)) {
+      open = false;
+      continue;
+    }
+    // A new segment when time jumps by more than one and a half periods.
+    if (open && period_ns > 0 && s.t_ns - last_t > period_ns * 3 / 2) open = false;
+    if (open && period_ns == 0) period_ns = s.t_ns - last_t;
+    if (!open) {
+      segments.emplace_back();
+      open = true;
+    }
+    segments.back().samples.push_back(s);
+    segments.back().reference_m.push_back(x);
+    last_t = s.t_ns;
+  }
+  if (st == drivers::ReadStatus::error) {
+    error = log.last_error();
+    return false;
+  }
+  return true;
+}
+
+}  // namespace ve::app
