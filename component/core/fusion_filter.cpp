@@ -43,6 +43,13 @@ FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const Sensor
     q_(kVibQuad, kVibQuad) = dv;
   }
 
+  q_accel_ = q_;
+  // Hall only: the acceleration is a random walk of its own, the jerk state rests.
+  q_hall_only_ = q_;
+  const double dh = tuning.hall_only_jerk_std_mps3 * t;
+  q_hall_only_(kAcc, kAcc) = dh * dh;
+  q_hall_only_(kJerk, kJerk) = 0.0;
+
   const double d = model.hall_delay_s;
   h_hall_(kPos) = 1.0;
   h_hall_(kVel) = -d;
@@ -100,6 +107,20 @@ void FusionFilter::predict() {
   p_.block<2, 2>(B, B) = (0.5 * (p_.block<2, 2>(B, B) + p_.block<2, 2>(B, B).transpose())).eval();
   p_.block<2, 2>(V, V) = (0.5 * (p_.block<2, 2>(V, V) + p_.block<2, 2>(V, V).transpose())).eval();
   p_ += q_;
+}
+
+void FusionFilter::set_accelerometer_available(bool available) {
+  if (available == accel_available_) return;
+  accel_available_ = available;
+  q_ = available ? q_accel_ : q_hall_only_;
+  if (!available) {
+    // Freeze the jerk at zero: without the accelerometer nothing observes it well.
+    x_(kJerk) = 0.0;
+    p_.row(kJerk).setZero();
+    p_.col(kJerk).setZero();
+  } else if (tuning_.snap_std_mps4 > 0.0) {
+    p_(kJerk, kJerk) = 100.0 * 100.0;
+  }
 }
 
 void FusionFilter::inflate(double position_var_m2, double velocity_var, double acceleration_var) {

@@ -41,6 +41,9 @@ class FusionFilter {
   double update_accel(double z_mps2, double r, double gate_sigma, bool& applied);
   /// Widens the covariance of the kinematic states (after persistent rejections).
   void inflate(double position_var_m2, double velocity_var, double acceleration_var);
+  /// Switches between the tuning with the accelerometer and the Hall-only one.
+  void set_accelerometer_available(bool available);
+  bool accelerometer_available() const { return accel_available_; }
 
   const Vec& state() const { return x_; }
   const Mat& covariance() const { return p_; }
@@ -60,6 +63,9 @@ class FusionFilter {
   SensorModel model_;
   Row h_hall_ = Row::Zero();
   bool vibration_ = false;
+  bool accel_available_ = true;
+  Mat q_accel_;      ///< process noise with the accelerometer
+  Mat q_hall_only_;  ///< ... without it
 };
 
 }  // namespace ve::core

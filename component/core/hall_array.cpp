@@ -20,11 +20,12 @@ HallArray::HallArray(const MotorConfig& motor, HallTable table)
   floor_m2_ = motor.filter.hall_position_floor_m * motor.filter.hall_position_floor_m;
 }
 
-bool HallArray::usable(const RawSample& s, int i) const {
-  return (s.hall_valid_mask >> i & 1u) && s.hall_v[i] > lo_v_ && s.hall_v[i] < hi_v_;
+bool HallArray::usable(const RawSample& s, int i, std::uint32_t use_mask) const {
+  return (s.hall_valid_mask & use_mask) >> i & 1u && s.hall_v[i] > lo_v_ && s.hall_v[i] < hi_v_;
 }
 
-HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_mode_v) const {
+HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_mode_v,
+                         std::uint32_t use_mask) const {
   HallFix fix;
   for (int i = 0; i < sensors_; ++i)
     if (!(sample.hall_valid_mask >> i & 1u)) fix.missing_mask |= 1u << i;
@@ -36,7 +37,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   for (int iter = 0; iter < 6; ++iter) {
     double h = 0.0, g = 0.0;
     for (int i = 0; i < sensors_; ++i) {
-      if (!usable(sample, i)) continue;
+      if (!usable(sample, i, use_mask)) continue;
       double t, slope;
       table_.evaluate(i, x, t, slope);
       h += slope * slope;
@@ -58,28 +59,29 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   int used = 0;
   double h = 0.0;
   for (int i = 0; i < sensors_; ++i) {
-    if (!(sample.hall_valid_mask >> i & 1u)) continue;
+    if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
     double t, slope;
     table_.evaluate(i, x, t, slope);
     const double r = sample.hall_v[i] - common_mode_v - t;
-    if (usable(sample, i)) {
+    if (usable(sample, i, use_mask)) {
       chi2 += r * r * weight_;
       h += slope * slope;
       ++used;
     } else if (std::abs(r) > 0.25) {
-      return fix;  // inconsistent with a saturated sensor
+      fix.conflict_mask |= 1u << i;  // inconsistent with a saturated sensor
     }
   }
-  if (used == 0 || h <= 0.0) return fix;
-  fix.ok = true;
   fix.position_m = x;
-  fix.variance_m2 = 1.0 / (h * weight_) + floor_m2_;
-  fix.sensors_used = used;
   fix.chi2 = chi2;
+  fix.sensors_used = used;
+  if (used == 0 || h <= 0.0 || fix.conflict_mask != 0) return fix;
+  fix.ok = true;
+  fix.variance_m2 = 1.0 / (h * weight_) + floor_m2_;
   return fix;
 }
 
-HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v) const {
+HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v,
+                           std::uint32_t use_mask) const {
   lo_m = std::max(lo_m, table_.start_m);
   hi_m = std::min(hi_m, table_.end_m());
   const int k0 = static_cast<int>(std::ceil((lo_m - table_.start_m) / table_.step_m));
@@ -91,7 +93,7 @@ HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, do
   for (int k = k0; k <= k1; ++k) {
     double cost = 0.0;
     for (int i = 0; i < sensors_; ++i) {
-      if (!(sample.hall_valid_mask >> i & 1u)) continue;
+      if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
       const double r = sample.hall_v[i] - common_mode_v - table_.v[static_cast<std::size_t>(i) * table_.points + k];
       cost += r * r;
     }
@@ -101,7 +103,7 @@ HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, do
     }
   }
   if (best_k < 0) return HallFix{};
-  return solve(sample, table_.start_m + best_k * table_.step_m, common_mode_v);
+  return solve(sample, table_.start_m + best_k * table_.step_m, common_mode_v, use_mask);
 }
 
 }  // namespace ve::core

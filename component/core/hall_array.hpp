@@ -21,6 +21,9 @@ struct HallFix {
   double chi2 = 0.0;            ///< sum of squared normalised residuals of the sensors used
   std::uint32_t missing_mask = 0;  ///< bit i: sensor i had no sample
   bool out_of_table = false;    ///< the solution ran into an end of the table
+  /// Saturated sensors whose table value at the solution is far from the rail they
+  /// read: the solution (or that sensor) is wrong. A fix with conflicts is not ok.
+  std::uint32_t conflict_mask = 0;
 };
 
 class HallArray {
@@ -30,17 +33,20 @@ class HallArray {
   /// Refines a position near `guess_m` (normally the filter's prediction).
   /// Converges when the guess is within about pitch/8 of the truth. No allocation.
   /// `common_mode_v` is removed from every reading first (the coil field's offset).
-  HallFix solve(const RawSample& sample, double guess_m, double common_mode_v = 0.0) const;
+  /// Only sensors in `use_mask` take part (the others are ignored entirely).
+  HallFix solve(const RawSample& sample, double guess_m, double common_mode_v = 0.0,
+                std::uint32_t use_mask = 0xFFu) const;
 
   /// Searches [lo_m, hi_m] for the best-matching position (start-up, re-acquisition),
   /// then refines it. Cost grows with the window; use at most a few periods.
-  HallFix acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v = 0.0) const;
+  HallFix acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v = 0.0,
+                  std::uint32_t use_mask = 0xFFu) const;
 
   const HallTable& table() const { return table_; }
   double pitch_m() const { return pitch_m_; }
 
  private:
-  bool usable(const RawSample& s, int i) const;
+  bool usable(const RawSample& s, int i, std::uint32_t use_mask) const;
 
   HallTable table_;
   double pitch_m_;

@@ -99,6 +99,26 @@ struct FilterConfig {
   /// Use the frame accelerometer, when the source has one, to remove the frame's
   /// own motion from the moving accelerometer.
   bool use_frame_accelerometer = true;
+
+  // --- sensor health ---
+  /// A Hall fix whose sensors disagree beyond this chi-square is re-solved without
+  /// the sensor that explains the disagreement (a spike or a failing sensor).
+  double sensor_chi2_limit = 25.0;
+  /// Per-sensor fault score: an exponential average (this time constant, in
+  /// samples) of "was the outlier"; above sensor_fault_on the sensor is faulty and
+  /// left out until the process restarts.
+  double sensor_fault_time_constant_samples = 20.0;
+  double sensor_fault_on = 0.3;
+  /// Fewest healthy Hall sensors for a VALID position; 0: all but one.
+  int min_healthy_halls = 0;
+  /// The accelerometer is dead when it repeats exactly the same reading this many
+  /// samples in a row (its noise alone never does).
+  int accel_stuck_samples = 8;
+  /// The accelerometer's bias has left its calibration when the estimate is this far from it [m/s^2].
+  double accel_bias_limit_mps2 = 0.5;
+  /// Without the accelerometer (failed or absent) the filter runs on the Halls
+  /// alone: white jerk of this size drives the acceleration, and the jerk state rests.
+  double hall_only_jerk_std_mps3 = 500.0;
 };
 
 struct MotorConfig {

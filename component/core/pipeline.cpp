@@ -1,6 +1,8 @@
 #include "pipeline.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 #include "status.hpp"
@@ -21,6 +23,52 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
       period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))) {
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
+  const int n = std::min(config.motor.hall.count, kMaxHalls);
+  all_halls_mask_ = (1u << n) - 1u;
+  min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
+}
+
+HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, double common_mode_v,
+                                   std::uint32_t use_mask, std::uint32_t& outlier_mask) const {
+  outlier_mask = 0;
+  const double limit = cfg_.motor.filter.sensor_chi2_limit;
+  HallFix fix = hall_.solve(sample, guess_m, common_mode_v, use_mask);
+  if (fix.ok && fix.chi2 <= limit) return fix;
+  // The sensors disagree (or one reads a rail where the others place it in the
+  // middle): find the one sensor whose removal leaves a consistent fix, and among
+  // such fixes take the one closest to the prediction.
+  const double var_pred = kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos);
+  double best_score = std::numeric_limits<double>::infinity();
+  HallFix best;
+  for (int i = 0; i < kMaxHalls; ++i) {
+    const std::uint32_t bit = 1u << i;
+    if (!(use_mask & sample.hall_valid_mask & bit)) continue;
+    const HallFix f = hall_.solve(sample, guess_m, common_mode_v, use_mask & ~bit);
+    if (!f.ok || f.chi2 > limit) continue;
+    const double d = f.position_m - guess_m;
+    const double score = d * d / (var_pred + f.variance_m2);
+    if (score < best_score) {
+      best_score = score;
+      best = f;
+      outlier_mask = bit;
+    }
+  }
+  return outlier_mask ? best : fix;
+}
+
+void AxisPipeline::update_hall_health(std::uint32_t used_mask, std::uint32_t outlier_mask) {
+  // A sensor judged faulty stays out until the process restarts: judging it
+  // healthy again against fixes made by fewer sensors could let two failed sensors
+  // agree on a wrong place (seen in the tests), and a drive must never get that.
+  const auto& f = cfg_.motor.filter;
+  const double alpha = 1.0 / std::max(1.0, f.sensor_fault_time_constant_samples);
+  for (int i = 0; i < kMaxHalls; ++i) {
+    const std::uint32_t bit = 1u << i;
+    if (!(used_mask & bit)) continue;
+    double& score = fault_score_[i];
+    score += alpha * (((outlier_mask & bit) ? 1.0 : 0.0) - score);
+    if (score > f.sensor_fault_on) faulty_mask_ |= bit;
+  }
 }
 
 bool AxisPipeline::acquire(const RawSample& sample) {
@@ -45,7 +93,7 @@ bool AxisPipeline::acquire(const RawSample& sample) {
     hi = hall_.table().start_m + 2.0 * p;
     homed = false;
   }
-  const HallFix fix = hall_.acquire(sample, lo, hi);
+  const HallFix fix = hall_.acquire(sample, lo, hi, 0.0, all_halls_mask_ & ~faulty_mask_);
   if (!fix.ok) return false;
   kf_.reset(fix.position_m, fix.variance_m2, accel_reading(sample), accel_usable(sample));
   homed_ = homed;
@@ -77,9 +125,18 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.seq = sample.seq;
   out_.samples_skipped = 0;
 
-  for (int i = 0; i < sample.hall_count && i < kMaxHalls; ++i)
-    if (!(sample.hall_valid_mask >> i & 1u)) status |= status::hall_fault(i);
-  if (!accel_usable(sample)) status |= status::kAccelFault;
+  // Accelerometer health: missing, saturated, or dead (the same reading again and again).
+  bool accel_ok = accel_usable(sample);
+  if (sample.accel_valid) {
+    accel_repeats_ = sample.accel_mps2 == last_accel_ ? accel_repeats_ + 1 : 0;
+    last_accel_ = sample.accel_mps2;
+    if (accel_repeats_ >= cfg_.motor.filter.accel_stuck_samples) accel_stuck_ = true;
+    if (accel_repeats_ == 0) accel_stuck_ = false;
+  }
+  accel_ok = accel_ok && !accel_stuck_;
+  out_.accel_stuck = accel_stuck_;
+  kf_.set_accelerometer_available(accel_ok);
+  if (!accel_ok) status |= status::kAccelFault;
 
   // Timing: predict once per nominal period elapsed, so dropped samples are
   // bridged by prediction; a long silence restarts the filter without the period.
@@ -119,8 +176,12 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     const auto& xp = kf_.state();
     const double guess = xp(FusionFilter::kPos) - cfg_.sensors.hall_delay_s * xp(FusionFilter::kVel);
     const double common_mode = cfg_.sensors.coil_field_v_per_mps2 * xp(FusionFilter::kAcc);
-    const HallFix fix = hall_.solve(sample, guess, common_mode);
+    std::uint32_t outlier = 0;
+    const std::uint32_t use = all_halls_mask_ & ~faulty_mask_;
+    const HallFix fix = solve_robust(sample, guess, common_mode, use, outlier);
     out_.hall_sensors_used = fix.sensors_used;
+    out_.hall_outlier_mask = outlier;
+    if (fix.ok) update_hall_health(use & sample.hall_valid_mask, outlier);
     if (fix.ok) {
       without_fix_in_row_ = 0;
       out_.hall_position_m = fix.position_m;
@@ -138,7 +199,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
         // the prediction, so it is in the same magnet period.
         const double nu = fix.position_m - xp(FusionFilter::kPos);
         const double span_s = rejected_in_row_ * kf_.period_s();
-        kf_.inflate(nu * nu, 4.0 * nu * nu / (span_s * span_s), 4.0 * nu * nu / (span_s * span_s * span_s * span_s));
+        // Without the accelerometer nothing would hold a widened acceleration: then
+        // only position and velocity are widened.
+        const double acc_var = accel_ok ? 4.0 * nu * nu / (span_s * span_s * span_s * span_s) : 0.0;
+        kf_.inflate(nu * nu, 4.0 * nu * nu / (span_s * span_s), acc_var);
         out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix.variance_m2, 0.0, applied);
         rejected_in_row_ = 0;
       }
@@ -148,7 +212,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   }
   if (!applied) status |= status::kHallRejected;
 
-  if (!(status & status::kAccelFault)) {
+  if (accel_ok) {
     bool used = false;
     const bool frame = use_frame(sample);
     const double r = frame ? 2.0 * accel_var_ : accel_var_;
@@ -168,6 +232,20 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.velocity_std_mps = std::sqrt(p(FusionFilter::kVel, FusionFilter::kVel));
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 
+  // A bias far from its calibrated value: the accelerometer has changed (it is still
+  // used, the bias state compensates, but someone should look).
+  if (std::abs(out_.accel_bias_mps2 - cfg_.sensors.accel_bias_mps2) > cfg_.motor.filter.accel_bias_limit_mps2)
+    status |= status::kAccelFault;
+
+  // Hall health: missing samples and sensors judged faulty.
+  const std::uint32_t missing = all_halls_mask_ & ~sample.hall_valid_mask;
+  const std::uint32_t flagged = missing | faulty_mask_;
+  out_.hall_faulty_mask = faulty_mask_;
+  status |= flagged << status::kHallFaultShift;
+  int healthy = 0;
+  for (int i = 0; i < kMaxHalls; ++i)
+    if ((all_halls_mask_ & ~flagged) >> i & 1u) ++healthy;
+
   // The period is known only while the position is certain to well within a pitch.
   if (out_.position_std_m > cfg_.motor.magnet_pitch_m / 8.0) homed_ = false;
   if (homed_) status |= status::kHomed;
@@ -177,7 +255,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // One rejected fix is a spike the prediction bridges; two in a row mean the
   // prediction itself may be off, until the filter has followed the Halls again.
   if (initialised_ && out_.position_std_m < kValidPositionStdM && out_.velocity_std_mps < kValidVelocityStdMps &&
-      without_fix_in_row_ < cfg_.max_samples_without_fix / 2 && rejected_in_row_ < 2)
+      without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_)
     status |= status::kValid;
   out_.status = status;
   return out_;

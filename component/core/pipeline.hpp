@@ -47,6 +47,9 @@ struct EncoderEstimate {
   double accel_bias_mps2 = 0.0;        ///< current accelerometer bias estimate
   double accel_scale = 1.0;            ///< current accelerometer scale estimate
   std::uint32_t samples_skipped = 0;   ///< samples missing before this one (from the timestamps)
+  std::uint32_t hall_faulty_mask = 0;  ///< Hall sensors judged faulty (left out until healthy again)
+  std::uint32_t hall_outlier_mask = 0; ///< Hall sensor left out of this sample's fix
+  bool accel_stuck = false;            ///< the accelerometer repeats one reading: dead
 };
 
 class AxisPipeline {
@@ -81,6 +84,17 @@ class AxisPipeline {
   int rejected_in_row_ = 0;
   int without_fix_in_row_ = 0;
   double accel_var_;
+  // Sensor health.
+  HallFix solve_robust(const RawSample& sample, double guess_m, double common_mode_v, std::uint32_t use_mask,
+                       std::uint32_t& outlier_mask) const;
+  void update_hall_health(std::uint32_t used_mask, std::uint32_t outlier_mask);
+  double fault_score_[kMaxHalls] = {};
+  std::uint32_t faulty_mask_ = 0;
+  std::uint32_t all_halls_mask_ = 0;
+  int min_healthy_ = 1;
+  double last_accel_ = 0.0;
+  int accel_repeats_ = 0;
+  bool accel_stuck_ = false;
 };
 
 }  // namespace ve::core

@@ -67,9 +67,35 @@ struct ImperfectionConfig {
   bool frame_accelerometer = false;
 };
 
+/// A sensor fault injected at a chosen time, so every failure case is a test.
+struct FaultConfig {
+  enum class Kind {
+    hall_stuck_high,    ///< Hall `sensor` reads the top rail
+    hall_stuck_low,     ///< ... the bottom rail
+    hall_stuck_mid,     ///< ... its zero-field output (a dead sensor behind its amplifier)
+    hall_noisy,         ///< ... extra white noise of `magnitude` volts
+    hall_intermittent,  ///< ... its sample is missing with probability `magnitude`
+    hall_spikes,        ///< ... a `magnitude`-volt spike with probability 1 % per sample
+    accel_dead,         ///< the accelerometer reads 0
+    accel_saturated,    ///< ... its full scale
+    accel_bias,         ///< ... an extra bias of `magnitude` m/s^2
+    accel_missing,      ///< no accelerometer sample at all
+  };
+  Kind kind = Kind::hall_stuck_high;
+  int sensor = 0;          ///< Hall index, for the hall_* kinds
+  double start_s = 0.0;    ///< from this simulated time on ...
+  double end_s = 1e300;    ///< ... until this one
+  double magnitude = 0.0;
+};
+
+/// Most faults one simulation injects (fixed, so the source never allocates).
+inline constexpr int kMaxFaults = 4;
+
 struct SimConfig {
   MotionProfileConfig profile;
   ImperfectionConfig imperfections;
+  FaultConfig faults[kMaxFaults];
+  int fault_count = 0;
   std::uint64_t noise_seed = 1;  ///< seeds the per-sample sensor noise
   bool realtime = true;          ///< true: one sample per period of wall time; false: as fast as possible
   double duration_s = 0.0;       ///< > 0: the source ends (end_of_stream) after this much simulated time [s]

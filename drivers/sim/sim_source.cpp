@@ -25,6 +25,9 @@ class Stream {
  public:
   Stream(std::uint64_t seed, std::uint64_t key) : state_(splitmix(seed ^ splitmix(key))) {}
 
+  /// Uniform in [0, 1).
+  double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+
   /// Standard normal; Box-Muller, both outputs used.
   double normal() {
     if (have_spare_) {
@@ -54,6 +57,7 @@ constexpr std::uint64_t kKeySensor = 3ull << 60;
 // the sample index goes in the low bits): independent of that noise and of each other.
 constexpr std::uint64_t kKeyBiasWalk = 5ull << 60;
 constexpr std::uint64_t kKeyBaseAccel = 6ull << 60;
+constexpr std::uint64_t kKeyFault = 7ull << 60;
 
 double track_normal(std::uint64_t seed, std::uint64_t key, std::int64_t index) {
   return Stream(seed, key ^ (static_cast<std::uint64_t>(index) & ((1ull << 60) - 1))).normal();
@@ -320,9 +324,54 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
     out.accel_base_valid = false;
   }
 
+  if (cfg_.fault_count > 0) inject_faults(t_s, k, out);
+
   truth_ = {now.position_m, now.velocity_mps, now.acceleration_mps2};
   samples_read_ = n + 1;
   return drivers::ReadStatus::ok;
+}
+
+void SimSource::inject_faults(double t_s, std::uint64_t k, core::RawSample& out) const {
+  Stream draw(cfg_.noise_seed, kKeyFault ^ k);
+  for (int f = 0; f < cfg_.fault_count && f < kMaxFaults; ++f) {
+    const FaultConfig& fault = cfg_.faults[f];
+    if (t_s < fault.start_s || t_s >= fault.end_s) continue;
+    const auto i = static_cast<std::size_t>(std::clamp(fault.sensor, 0, motor_.hall.count - 1));
+    using K = FaultConfig::Kind;
+    switch (fault.kind) {
+      case K::hall_stuck_high:
+        out.hall_v[i] = motor_.adc.max_v;
+        break;
+      case K::hall_stuck_low:
+        out.hall_v[i] = motor_.adc.min_v;
+        break;
+      case K::hall_stuck_mid:
+        out.hall_v[i] = motor_.hall.offset_v;
+        break;
+      case K::hall_noisy:
+        out.hall_v[i] = std::clamp(out.hall_v[i] + fault.magnitude * draw.normal(), motor_.adc.min_v, motor_.adc.max_v);
+        break;
+      case K::hall_intermittent:
+        if (draw.uniform() < fault.magnitude) out.hall_valid_mask &= ~(1u << i);
+        break;
+      case K::hall_spikes:
+        if (draw.uniform() < 0.01)
+          out.hall_v[i] = std::clamp(out.hall_v[i] + fault.magnitude, motor_.adc.min_v, motor_.adc.max_v);
+        break;
+      case K::accel_dead:
+        out.accel_mps2 = 0.0;
+        break;
+      case K::accel_saturated:
+        out.accel_mps2 = motor_.accelerometer.range_mps2;
+        break;
+      case K::accel_bias:
+        out.accel_mps2 += fault.magnitude;
+        break;
+      case K::accel_missing:
+        out.accel_valid = false;
+        break;
+    }
+  }
 }
 
 std::string SimSource::describe() const {

@@ -94,6 +94,7 @@ class SimSource final : public drivers::SensorSource {
   void build_track();
   double field_shape(double theta) const;
   bool wait_until_due(std::uint64_t n);  // false: stopped while waiting
+  void inject_faults(double t_s, std::uint64_t k, core::RawSample& out) const;
 
   core::MotorConfig motor_;
   SimConfig cfg_;

@@ -14,33 +14,15 @@
 #include "core/pipeline.hpp"
 #include "core/status.hpp"
 #include "sim/calibration_run.hpp"
+#include "realistic_fixture.hpp"
 #include "sim/sim_source.hpp"
 
 namespace {
 
 using ve::sim::MotionProfileConfig;
 
-struct Realistic {
-  ve::config::AxisConfig axis;
-  ve::core::Calibration cal;
-  ve::core::IdentificationReport report;
-};
-
-/// Loads a shipped realistic machine and calibrates it once per test binary run.
-const Realistic& realistic(const std::string& machine_file) {
-  static std::map<std::string, Realistic> cache;
-  auto it = cache.find(machine_file);
-  if (it != cache.end()) return it->second;
-  Realistic r;
-  const auto loaded = ve::config::load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/" + machine_file);
-  EXPECT_TRUE(loaded.ok()) << ve::config::to_string(loaded.errors);
-  r.axis = loaded.config.axes.at(0);
-  std::vector<ve::core::ReferenceSegment> segments;
-  std::string error;
-  EXPECT_TRUE(ve::sim::record_calibration_run(r.axis.motor, r.axis.driver.sim, {}, segments, error)) << error;
-  EXPECT_TRUE(ve::core::identify_with_reference(r.axis.motor, segments, {}, r.cal, r.report, error)) << error;
-  return cache.emplace(machine_file, std::move(r)).first->second;
-}
+using ve::test::Realistic;
+using ve::test::realistic;
 
 struct Scenario {
   const char* name;
