@@ -374,7 +374,7 @@ bool Value::as(std::vector<double>& out, const Check<double>& check) const {
   values.reserve(n.size());
   std::size_t i = 0;
   for (auto it = n.begin(); it != n.end(); ++it, ++i) {
-    const YAML::Node& e = *it;
+    const YAML::Node e = *it;  // a copy: the iterator's value is a temporary
     double x = 0.0;
     if (e.IsScalar() && !is_quoted(e) && parse_double(e.Scalar(), x) == Parsed::ok && !check) {
       values.push_back(x);  // fast path: no strings built for good elements
@@ -449,7 +449,10 @@ Map Value::as_map() const {
     return m;
   }
   for (auto it = n.begin(); it != n.end(); ++it) {
-    const YAML::Node& k = it->first;
+    // yaml-cpp's iterator hands out a temporary pair: copy the nodes (cheap
+    // handles), never bind references to it->first / it->second (they dangle).
+    const YAML::Node k = it->first;
+    const YAML::Node val = it->second;
     const Pos key_pos = to_pos(k.Mark());
     if (!k.IsScalar()) {
       mi.doc->error(key_pos.line ? key_pos : mi.pos, mi.path, "keys must be plain names, got " + describe_node(k));
@@ -463,10 +466,10 @@ Map Value::as_map() const {
     }
     Map::Impl::Entry e;
     e.key = key;
-    e.value = it->second;
+    e.value = val;
     e.key_pos = key_pos;
     // A null value has no position of its own (yaml-cpp points at the next token).
-    const Pos vp = it->second.IsNull() ? Pos{} : to_pos(it->second.Mark());
+    const Pos vp = val.IsNull() ? Pos{} : to_pos(val.Mark());
     e.value_pos = vp.line ? vp : key_pos;
     mi.entries.push_back(std::move(e));
   }
