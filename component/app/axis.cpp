@@ -5,6 +5,7 @@
 #include "config/calibration_file.hpp"
 #include "replay/replay_source.hpp"
 #include "sim/sim_source.hpp"
+#include "socketcan/socketcan_source.hpp"  // issue 6
 
 namespace ve::app {
 
@@ -59,6 +60,20 @@ std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axi
       }
       return source;
     }
+    // ---- socketcan driver (issue 6) ----
+    case config::DriverConfig::Kind::socketcan: {
+      socketcan::SocketCanOptions opt;
+      opt.interface = axis.driver.socketcan.interface;
+      opt.layout = axis.driver.socketcan.layout;
+      opt.timeout_ms = axis.driver.socketcan.timeout_ms;
+      auto source = std::make_unique<socketcan::SocketCanSource>(std::move(opt));
+      if (!source->ok()) {
+        error = "axis '" + axis.name + "': " + source->last_error();
+        return nullptr;
+      }
+      return source;
+    }
+    // ---- end socketcan ----
   }
   error = "axis '" + axis.name + "': unknown driver";
   return nullptr;

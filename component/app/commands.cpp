@@ -1,11 +1,15 @@
 #include "commands.hpp"
 
+#include <time.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <climits>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <thread>
 #include <vector>
@@ -47,26 +51,141 @@ const config::AxisConfig* find_axis(const config::MachineConfig& m, const std::s
   return nullptr;
 }
 
+std::int64_t clock_ns(clockid_t clock) {
+  timespec ts{};
+  clock_gettime(clock, &ts);
+  return static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
+}
+
+/// Budget the diagnostics' ratios refer to (one sigma).
+constexpr double kPositionStdBudgetM = 5.0e-6;
+constexpr double kVelocityStdBudgetMps = 1.7e-3;
+/// Diagnostics period per axis [ns] (also every sample_rate/10 samples).
+constexpr std::int64_t kDiagnosticsPeriodNs = 100000000;
+
+/// What one diagnostics sample summarises: fixed-size counters, reset per period.
+struct DiagnosticsAccumulator {
+  std::int64_t start_ns = 0;  ///< steady clock
+  std::uint64_t samples = 0;
+  double step_sum_ns = 0.0, step_max_ns = 0.0;
+  std::uint64_t intervals = 0;
+  double interval_sum_ns = 0.0, interval_sumsq_ns2 = 0.0, interval_max_ns = 0.0;
+  std::uint64_t fixes = 0;
+  double innovation_sumsq = 0.0, innovation_max_abs = 0.0;
+  double sensors_used_sum = 0.0;
+  int sensors_used_min = INT_MAX;
+  std::uint32_t valid_and = ~0u;
+
+  void reset(std::int64_t now_ns) {
+    *this = DiagnosticsAccumulator{};
+    start_ns = now_ns;
+  }
+};
+
+/// Test/diagnostic hook: stall one axis' loop once.
+struct StallHook {
+  bool armed = false;
+  double after_s = 0.0;
+  double for_s = 0.0;
+};
+
 /// Per-axis loop state shared with the status reporter.
 struct AxisLoop {
   AxisSetup setup;
   std::thread thread;
+  int slot = -1;  ///< StateWriter::add_axis
+  StallHook stall;
   std::atomic<std::uint64_t> samples{0};
   std::atomic<std::uint64_t> write_failures{0};
   std::atomic<std::uint64_t> skipped{0};
+  std::atomic<std::uint64_t> diagnostics_published{0};
   std::atomic<bool> finished{false};
   std::string end_reason;
   // Last published values, for the status line (torn reads are harmless here).
   std::atomic<double> position_m{0}, velocity_mps{0}, position_std_m{0}, velocity_std_mps{0};
+  std::atomic<double> innovation_rms{0}, step_max_us{0};
   std::atomic<std::uint32_t> status{0};
 };
 
-void axis_loop(AxisLoop& loop, StateWriter& writer) {
+void fill_diagnostics(const AxisLoop& loop, const DiagnosticsAccumulator& acc, const core::RawSample& sample,
+                      const core::EncoderEstimate& est, const ve::dds::EncoderState& state,
+                      const DeadlineCounters& deadline, std::uint64_t diag_sequence, std::int64_t now_ns,
+                      ve::dds::Diagnostics& d) {
+  const auto& motor = loop.setup.config.motor;
+  const int halls = std::min(sample.hall_count, core::kMaxHalls);
+  const std::uint32_t used_bits = halls >= 32 ? ~0u : ((1u << halls) - 1u);
+  std::uint32_t saturated = 0;
+  const double lo = motor.adc.min_v + motor.hall.saturation_margin_v;
+  const double hi = motor.adc.max_v - motor.hall.saturation_margin_v;
+  for (int i = 0; i < core::kMaxHalls; ++i) {
+    const double v = i < halls ? sample.hall_v[static_cast<std::size_t>(i)] : 0.0;
+    d.hall_volts()[static_cast<std::size_t>(i)] = v;
+    if (i < halls && (v <= lo || v >= hi)) saturated |= 1u << i;
+  }
+  d.axis_id(loop.setup.config.id);
+  d.status(est.status);
+  d.hall_count(static_cast<std::uint32_t>(halls));
+  d.hall_valid_mask(acc.valid_and & used_bits);
+  d.hall_saturated_mask(saturated);
+  d.hall_sensors_used_min(acc.sensors_used_min == INT_MAX ? 0u : static_cast<std::uint32_t>(acc.sensors_used_min));
+  d.sequence_number(diag_sequence);
+  d.state_sequence(state.sequence_number());
+  d.sample_time_ns(state.sample_time_ns());
+  d.publish_time_ns(clock_ns(CLOCK_REALTIME));
+  d.period_samples(acc.samples);
+  d.samples_total(loop.samples.load(std::memory_order_relaxed));
+  d.samples_skipped_total(loop.skipped.load(std::memory_order_relaxed));
+  d.write_failures_total(loop.write_failures.load(std::memory_order_relaxed));
+  d.deadline_missed_total(deadline.missed.load(std::memory_order_relaxed));
+  d.deadline_episodes_total(deadline.episodes.load(std::memory_order_relaxed));
+  d.hall_sensors_used_mean(acc.fixes ? acc.sensors_used_sum / static_cast<double>(acc.fixes) : 0.0);
+  d.innovation_rms(acc.fixes ? std::sqrt(acc.innovation_sumsq / static_cast<double>(acc.fixes)) : 0.0);
+  d.innovation_max_abs(acc.innovation_max_abs);
+  d.accel_bias_mps2(est.accel_bias_mps2);
+  d.accel_scale(est.accel_scale);
+  d.step_time_mean_us(acc.samples ? acc.step_sum_ns / static_cast<double>(acc.samples) * 1e-3 : 0.0);
+  d.step_time_max_us(acc.step_max_ns * 1e-3);
+  if (acc.intervals > 0) {
+    const double n = static_cast<double>(acc.intervals);
+    const double mean = acc.interval_sum_ns / n;
+    d.arrival_period_mean_us(mean * 1e-3);
+    d.arrival_jitter_us(std::sqrt(std::max(0.0, acc.interval_sumsq_ns2 / n - mean * mean)) * 1e-3);
+  } else {
+    d.arrival_period_mean_us(0.0);
+    d.arrival_jitter_us(0.0);
+  }
+  d.arrival_interval_max_us(acc.interval_max_ns * 1e-3);
+  const double period_s = static_cast<double>(now_ns - acc.start_ns) * 1e-9;
+  d.sample_rate_hz(period_s > 0 ? static_cast<double>(acc.samples) / period_s : 0.0);
+  d.position_std_m(est.position_std_m);
+  d.velocity_std_mps(est.velocity_std_mps);
+  d.position_std_ratio(est.position_std_m / kPositionStdBudgetM);
+  d.velocity_std_ratio(est.velocity_std_mps / kVelocityStdBudgetMps);
+}
+
+/// Sleeps for `seconds` unless the source is stopped first (checks every 10 ms).
+void stall_sleep(double seconds, const std::atomic<bool>& stopping) {
+  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+  while (!stopping.load() && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+}
+
+void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnostics, const std::atomic<bool>& stopping) {
   core::RawSample sample;
   ve::dds::EncoderState state;
+  ve::dds::Diagnostics diag;
   std::uint64_t sequence = 0;
+  std::uint64_t diag_sequence = 0;
   auto& source = *loop.setup.source;
   auto& pipeline = *loop.setup.pipeline;
+  const DeadlineCounters& deadline = writer.counters(loop.slot);
+  const auto samples_per_diag = static_cast<std::uint64_t>(
+      std::max(1.0, std::round(loop.setup.config.motor.sample_rate_hz * kDiagnosticsPeriodNs * 1e-9)));
+  const std::int64_t start_ns = clock_ns(CLOCK_MONOTONIC);
+  const std::int64_t stall_at_ns = start_ns + static_cast<std::int64_t>(loop.stall.after_s * 1e9);
+  DiagnosticsAccumulator acc;
+  acc.reset(start_ns);
+  std::int64_t last_arrival_ns = 0;
   for (;;) {
     const auto st = source.read(sample);
     if (st == drivers::ReadStatus::timeout) continue;
@@ -74,9 +193,20 @@ void axis_loop(AxisLoop& loop, StateWriter& writer) {
       loop.end_reason = st == drivers::ReadStatus::error ? source.last_error() : std::string();
       break;
     }
+    const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
+    const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
+    if (loop.stall.armed && arrival_ns >= stall_at_ns) {
+      loop.stall.armed = false;
+      spdlog::warn("axis '{}': test hook: stalling the loop for {:.3f} s", loop.setup.config.name, loop.stall.for_s);
+      stall_sleep(loop.stall.for_s, stopping);
+      spdlog::info("axis '{}': test hook: stall over", loop.setup.config.name);
+    }
     const core::EncoderEstimate& est = pipeline.step(sample);
     fill_state(est, loop.setup.config, ++sequence, state);
-    if (!writer.write(state)) loop.write_failures.fetch_add(1, std::memory_order_relaxed);
+    state.acceleration_std_mps2(est.acceleration_std_mps2);
+    state.source_time_ns(handover_rt_ns);
+    state.publish_time_ns(clock_ns(CLOCK_REALTIME));
+    if (!writer.write(loop.slot, state)) loop.write_failures.fetch_add(1, std::memory_order_relaxed);
     loop.samples.fetch_add(1, std::memory_order_relaxed);
     if (est.samples_skipped) loop.skipped.fetch_add(est.samples_skipped, std::memory_order_relaxed);
     loop.position_m.store(est.position_m, std::memory_order_relaxed);
@@ -84,8 +214,65 @@ void axis_loop(AxisLoop& loop, StateWriter& writer) {
     loop.position_std_m.store(est.position_std_m, std::memory_order_relaxed);
     loop.velocity_std_mps.store(est.velocity_std_mps, std::memory_order_relaxed);
     loop.status.store(est.status, std::memory_order_relaxed);
+
+    // Diagnostics: fixed-size counters, no allocation per sample.
+    const std::int64_t done_ns = clock_ns(CLOCK_MONOTONIC);
+    const double step_ns = static_cast<double>(done_ns - arrival_ns);
+    ++acc.samples;
+    acc.step_sum_ns += step_ns;
+    acc.step_max_ns = std::max(acc.step_max_ns, step_ns);
+    if (last_arrival_ns != 0) {
+      const double interval = static_cast<double>(arrival_ns - last_arrival_ns);
+      ++acc.intervals;
+      acc.interval_sum_ns += interval;
+      acc.interval_sumsq_ns2 += interval * interval;
+      acc.interval_max_ns = std::max(acc.interval_max_ns, interval);
+    }
+    last_arrival_ns = arrival_ns;
+    if (est.hall_sensors_used > 0) {
+      ++acc.fixes;
+      acc.innovation_sumsq += est.hall_innovation_sigma * est.hall_innovation_sigma;
+      acc.innovation_max_abs = std::max(acc.innovation_max_abs, std::abs(est.hall_innovation_sigma));
+      acc.sensors_used_sum += est.hall_sensors_used;
+    }
+    acc.sensors_used_min = std::min(acc.sensors_used_min, est.hall_sensors_used);
+    acc.valid_and &= sample.hall_valid_mask;
+    if (acc.samples >= samples_per_diag || done_ns - acc.start_ns >= kDiagnosticsPeriodNs) {
+      fill_diagnostics(loop, acc, sample, est, state, deadline, ++diag_sequence, done_ns, diag);
+      if (diagnostics.write(diag)) loop.diagnostics_published.fetch_add(1, std::memory_order_relaxed);
+      loop.innovation_rms.store(diag.innovation_rms(), std::memory_order_relaxed);
+      loop.step_max_us.store(diag.step_time_max_us(), std::memory_order_relaxed);
+      writer.poll_deadline_episode(loop.slot, clock_ns(CLOCK_MONOTONIC));
+      acc.reset(clock_ns(CLOCK_MONOTONIC));
+    }
   }
+  // The source ended by itself (not a shutdown): the instance leaves, so that its
+  // deadline no longer runs while the other axes go on.
+  if (!stopping.load()) writer.retire_axis(loop.slot);
   loop.finished.store(true);
+}
+
+/// Stall hook from the options or, when they name none, from VE_TEST_STALL_AXIS="NAME:AFTER_S:FOR_S".
+bool stall_hook(const RunOptions& options, std::string& axis, double& after_s, double& for_s) {
+  if (!options.stall_axis.empty()) {
+    axis = options.stall_axis;
+    after_s = options.stall_after_s;
+    for_s = options.stall_for_s;
+    return true;
+  }
+  const char* env = std::getenv("VE_TEST_STALL_AXIS");
+  if (env == nullptr || *env == '\0') return false;
+  const std::string text(env);
+  const auto a = text.find(':');
+  const auto b = a == std::string::npos ? a : text.find(':', a + 1);
+  if (b == std::string::npos) {
+    spdlog::warn("VE_TEST_STALL_AXIS='{}' ignored: expected NAME:AFTER_S:FOR_S", text);
+    return false;
+  }
+  axis = text.substr(0, a);
+  after_s = std::atof(text.substr(a + 1, b - a - 1).c_str());
+  for_s = std::atof(text.substr(b + 1).c_str());
+  return true;
 }
 
 }  // namespace
@@ -118,18 +305,50 @@ int run_command(const RunOptions& options) {
     spdlog::error("{}", error);
     return 1;
   }
+  {
+    std::string stall_axis;
+    double stall_after = 0.0, stall_for = 0.0;
+    if (stall_hook(options, stall_axis, stall_after, stall_for)) {
+      bool found = false;
+      for (auto& loop : loops) {
+        if (loop->setup.config.name != stall_axis) continue;
+        loop->stall = StallHook{true, stall_after, stall_for};
+        found = true;
+      }
+      if (!found) {
+        std::fprintf(stderr, "--stall-axis: no axis '%s'\n", stall_axis.c_str());
+        return 2;
+      }
+      spdlog::warn("test hook: axis '{}' will stall for {:.3f} s after {:.3f} s", stall_axis, stall_for, stall_after);
+    }
+  }
   int exit_code = 0;
+  std::atomic<bool> stopping{false};
   {
     StateWriter state_writer(*ctx, machine.dds.deadline_ms);
     DescriptionWriter description_writer(*ctx);
-    if (!state_writer.ok() || !description_writer.ok()) {
+    DiagnosticsWriter diagnostics_writer(*ctx);
+    if (!state_writer.ok() || !description_writer.ok() || !diagnostics_writer.ok()) {
       spdlog::error("cannot create the DDS writers (check the QoS in the profiles file)");
       return 1;
     }
+    for (auto& loop : loops) {
+      loop->slot = state_writer.add_axis(loop->setup.config.id, loop->setup.config.name);
+      if (loop->slot < 0) {
+        spdlog::error("cannot create the DDS writer of axis '{}'", loop->setup.config.name);
+        return 1;
+      }
+    }
     for (const auto& loop : loops) description_writer.write(describe_axis(loop->setup, machine));
 
-    spdlog::info("machine '{}' from {}: {} axis/axes on DDS domain {}, topic '{}', deadline {} ms", machine.name,
-                 machine.source, loops.size(), machine.dds.domain, kStateTopic, machine.dds.deadline_ms);
+    spdlog::info("machine '{}' from {}: {} axis/axes on DDS domain {}, topics '{}', '{}', '{}', offered deadline {} ms",
+                 machine.name, machine.source, loops.size(), machine.dds.domain, kStateTopic, kDiagnosticsTopic,
+                 kDescriptionTopic, state_writer.deadline_ms());
+    spdlog::info("DDS QoS: {}", ctx->participant_from_profile() || state_writer.from_profile()
+                                    ? "XML profiles" + (machine.dds.profiles_file.empty()
+                                                            ? std::string(" (FASTRTPS_DEFAULT_PROFILES_FILE)")
+                                                            : " from " + machine.dds.profiles_file)
+                                    : std::string("built-in (no profiles file loaded)"));
     for (const auto& loop : loops) {
       const auto& s = loop->setup;
       spdlog::info("axis '{}' (id {}): {} | motor {} | {}", s.config.name, s.config.id, s.source->describe(),
@@ -147,7 +366,9 @@ int run_command(const RunOptions& options) {
       }
       spdlog::info("{} subscriber(s) matched; starting", state_writer.matched_readers());
     }
-    for (auto& loop : loops) loop->thread = std::thread(axis_loop, std::ref(*loop), std::ref(state_writer));
+    for (auto& loop : loops)
+      loop->thread = std::thread(axis_loop, std::ref(*loop), std::ref(state_writer), std::ref(diagnostics_writer),
+                                 std::cref(stopping));
 
     const auto start = std::chrono::steady_clock::now();
     std::vector<std::uint64_t> last_counts(loops.size(), 0);
@@ -168,11 +389,11 @@ int run_command(const RunOptions& options) {
         auto& l = *loops[i];
         const auto n = l.samples.load();
         spdlog::info("{:>4} x={:+11.6f} m v={:+9.5f} m/s sx={:6.2f} um sv={:6.3f} mm/s rate={:6.0f} Hz "
-                     "missed={} skipped={} [{}]",
+                     "missed={} skipped={} innov={:.2f} step-max={:.0f} us [{}]",
                      l.setup.config.name, l.position_m.load(), l.velocity_mps.load(), l.position_std_m.load() * 1e6,
                      l.velocity_std_mps.load() * 1e3, dt > 0 ? (n - last_counts[i]) / dt : 0.0,
-                     state_writer.deadline_missed(l.setup.config.id), l.skipped.load(),
-                     core::status_to_string(l.status.load()));
+                     state_writer.deadline_missed(l.setup.config.id), l.skipped.load(), l.innovation_rms.load(),
+                     l.step_max_us.load(), core::status_to_string(l.status.load()));
         last_counts[i] = n;
         all_finished = all_finished && l.finished.load();
       }
@@ -184,6 +405,7 @@ int run_command(const RunOptions& options) {
           std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >= options.duration_s)
         break;
     }
+    stopping.store(true);
     for (auto& loop : loops) loop->setup.source->stop();
     for (auto& loop : loops) {
       if (loop->thread.joinable()) loop->thread.join();
@@ -191,6 +413,12 @@ int run_command(const RunOptions& options) {
         spdlog::error("axis '{}': {}", loop->setup.config.name, loop->end_reason);
         exit_code = 1;
       }
+    }
+    for (auto& loop : loops) {
+      const auto& c = state_writer.counters(loop->slot);
+      spdlog::info("axis '{}': {} samples, {} diagnostics, offered deadline missed {} times in {} episode(s)",
+                   loop->setup.config.name, loop->samples.load(), loop->diagnostics_published.load(), c.missed.load(),
+                   c.episodes.load());
     }
     spdlog::info("published {} samples; offered deadline missed {} times",
                  [&] {
@@ -351,14 +579,16 @@ int monitor_command(const MonitorOptions& options) {
   StateReader::Callback csv_row;
   if (options.csv) {
     std::printf("axis_id,sequence,sample_time_ns,status,position_counts,velocity_counts_per_s,position_m,"
-                "velocity_mps,acceleration_mps2,position_std_m,velocity_std_mps\n");
+                "velocity_mps,acceleration_mps2,position_std_m,velocity_std_mps,acceleration_std_mps2,source_time_ns,"
+                "publish_time_ns\n");
     csv_row = [&out_mutex](const ve::dds::EncoderState& s) {
       std::lock_guard<std::mutex> lock(out_mutex);
-      std::printf("%u,%llu,%lld,0x%08x,%lld,%lld,%.9f,%.6f,%.4f,%.3e,%.3e\n", s.axis_id(),
+      std::printf("%u,%llu,%lld,0x%08x,%lld,%lld,%.9f,%.6f,%.4f,%.3e,%.3e,%.3e,%lld,%lld\n", s.axis_id(),
                   static_cast<unsigned long long>(s.sequence_number()), static_cast<long long>(s.sample_time_ns()),
                   s.status(), static_cast<long long>(s.position_counts()),
                   static_cast<long long>(s.velocity_counts_per_s()), s.position_m(), s.velocity_mps(),
-                  s.acceleration_mps2(), s.position_std_m(), s.velocity_std_mps());
+                  s.acceleration_mps2(), s.position_std_m(), s.velocity_std_mps(), s.acceleration_std_mps2(),
+                  static_cast<long long>(s.source_time_ns()), static_cast<long long>(s.publish_time_ns()));
     };
   }
   int exit_code = 0;
@@ -391,15 +621,33 @@ int monitor_command(const MonitorOptions& options) {
       last_print = now;
       const auto axes = reader.snapshot();
       if (tty) std::printf("\x1b[H\x1b[2J");
-      std::printf("%-10s %14s %12s %9s %10s %8s %9s %8s  %s\n", "axis", "position[mm]", "vel[mm/s]", "sx[um]",
-                  "sv[mm/s]", "rate[Hz]", "dl-miss", "gaps", "status");
+      // dl-miss: deadline misses this monitor saw (requested) / the encoder reported (offered).
+      // innov: RMS normalised Hall innovation (~1 healthy); bias: accelerometer bias;
+      // step: longest estimator+publish step of the last diagnostics period.
+      std::printf("%-10s %14s %12s %9s %10s %8s %13s %8s %6s %10s %9s  %s\n", "axis", "position[mm]", "vel[mm/s]",
+                  "sx[um]", "sv[mm/s]", "rate[Hz]", "dl-miss(r/o)", "gaps", "innov", "bias[m/s2]", "step[us]",
+                  "status");
       for (const auto& a : axes) {
         const std::string name = a.have_description ? a.description.name() + "(" + std::to_string(a.axis_id) + ")"
                                                     : "id " + std::to_string(a.axis_id);
-        std::printf("%-10s %14.4f %12.3f %9.3f %10.4f %8.0f %9llu %8llu  %s\n", name.c_str(), a.last.position_m() * 1e3,
-                    a.last.velocity_mps() * 1e3, a.last.position_std_m() * 1e6, a.last.velocity_std_mps() * 1e3,
-                    a.rate_hz, static_cast<unsigned long long>(a.deadline_missed),
-                    static_cast<unsigned long long>(a.sequence_gaps), core::status_to_string(a.last.status()).c_str());
+        const bool diag = a.diagnostics_received > 0;
+        char misses[32];
+        if (diag)
+          std::snprintf(misses, sizeof misses, "%llu/%llu", static_cast<unsigned long long>(a.deadline_missed),
+                        static_cast<unsigned long long>(a.diagnostics.deadline_missed_total()));
+        else
+          std::snprintf(misses, sizeof misses, "%llu/-", static_cast<unsigned long long>(a.deadline_missed));
+        char innov[16] = "-", bias[16] = "-", step[16] = "-";
+        if (diag) {
+          std::snprintf(innov, sizeof innov, "%.2f", a.diagnostics.innovation_rms());
+          std::snprintf(bias, sizeof bias, "%+.4f", a.diagnostics.accel_bias_mps2());
+          std::snprintf(step, sizeof step, "%.0f", a.diagnostics.step_time_max_us());
+        }
+        std::printf("%-10s %14.4f %12.3f %9.3f %10.4f %8.0f %13s %8llu %6s %10s %9s  %s\n", name.c_str(),
+                    a.last.position_m() * 1e3, a.last.velocity_mps() * 1e3, a.last.position_std_m() * 1e6,
+                    a.last.velocity_std_mps() * 1e3, a.rate_hz, misses,
+                    static_cast<unsigned long long>(a.sequence_gaps), innov, bias, step,
+                    core::status_to_string(a.last.status()).c_str());
       }
       if (axes.empty()) std::printf("(no encoder on domain %d yet: is `virtual-encoder run` up?)\n", dds_options.domain);
       std::fflush(stdout);

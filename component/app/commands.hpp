@@ -2,6 +2,7 @@
 // 0 success, 1 the job failed (e.g. check found problems), 2 bad usage or input.
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -15,6 +16,13 @@ struct RunOptions {
   /// Before starting the sources, wait up to this long for a first subscriber to
   /// match, so that it sees the motion from its first sample [s]. 0: start at once.
   double wait_for_subscriber_s = 0.0;
+  /// Test/diagnostic hook: the loop of axis `stall_axis` sleeps for stall_for_s
+  /// once, stall_after_s after it started, so that its deadline is missed while
+  /// the other axes keep publishing. "" = none. Also from the environment:
+  /// VE_TEST_STALL_AXIS="NAME:AFTER_S:FOR_S".
+  std::string stall_axis;
+  double stall_after_s = 0.0;
+  double stall_for_s = 0.0;
 };
 int run_command(const RunOptions& options);
 
@@ -63,5 +71,18 @@ struct EvaluateOptions {
   double home_m = -1.0;        ///< overrides homing.position_m when >= 0
 };
 int evaluate_command(const EvaluateOptions& options);
+
+// ---- sensor-node: SocketCAN sensor node emulator (issue 6) ----
+struct SensorNodeOptions {
+  std::string config;            ///< machine file whose axis has a sim driver; "" = embedded default
+  std::string axis;              ///< "" = the first axis
+  std::string can = "vcan0";     ///< interface to send on
+  std::string layout;            ///< frame layout file (config/can/*.yaml)
+  double duration_s = 0.0;       ///< 0 = until SIGINT/SIGTERM
+  std::uint64_t drop_at = 0;     ///< fault injection: first frame (counter) not sent ...
+  std::uint64_t drop_count = 0;  ///< ... and how many in a row; 0 = none
+};
+int sensor_node_command(const SensorNodeOptions& options);
+// ---- end sensor-node ----
 
 }  // namespace ve::app

@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <deque>
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
@@ -16,6 +17,7 @@
 #include <fastdds/dds/subscriber/Subscriber.hpp>
 #include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
+#include <spdlog/spdlog.h>
 
 #include "VirtualEncoderPubSubTypes.h"
 #include "VirtualEncoderTypeObject.h"
@@ -33,36 +35,95 @@ eprosima::fastrtps::Duration_t duration_ms(double ms) {
                                         static_cast<std::uint32_t>(total_ns % 1000000000));
 }
 
+std::int64_t steady_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+double to_ms(const eprosima::fastrtps::Duration_t& d) {
+  if (d == eprosima::fastrtps::c_TimeInfinite) return 0.0;
+  return d.seconds * 1e3 + d.nanosec * 1e-6;
+}
+
+// Built-in QoS: the same values as deploy/dds-profiles.xml, used when the
+// profiles are not loaded. Reasons: README.md, "DDS interface".
+
+// Liveliness AUTOMATIC: the participant asserts it; a lease of 1 s offered, 2 s
+// requested (offered <= requested), announcements every 0.5 s (< lease, or Fast
+// DDS refuses the writer).
+void automatic_liveliness(fdds::LivelinessQosPolicy& l, double lease_s, double announce_s) {
+  l.kind = fdds::AUTOMATIC_LIVELINESS_QOS;
+  l.lease_duration = duration_ms(lease_s * 1e3);
+  l.announcement_period = duration_ms(announce_s * 1e3);
+}
+
 // The state stream: the newest sample is what a drive wants, a late retransmission
 // is worth nothing, so best effort with a history of one.
-fdds::DataWriterQos state_writer_qos(fdds::Publisher* pub, double deadline_ms) {
-  fdds::DataWriterQos q;
-  pub->get_default_datawriter_qos(q);
+void state_writer_defaults(fdds::DataWriterQos& q) {
   q.reliability().kind = fdds::BEST_EFFORT_RELIABILITY_QOS;
   q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
   q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
   q.history().depth = 1;
-  if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
-  return q;
+  q.deadline().period = duration_ms(5.0);
+  automatic_liveliness(q.liveliness(), 1.0, 0.5);
+  q.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
+  q.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
 }
 
-fdds::DataReaderQos state_reader_qos(fdds::Subscriber* sub, double deadline_ms) {
-  fdds::DataReaderQos q;
-  sub->get_default_datareader_qos(q);
+void state_reader_defaults(fdds::DataReaderQos& q) {
   q.reliability().kind = fdds::BEST_EFFORT_RELIABILITY_QOS;
   q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
   q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
   q.history().depth = 64;  // the listener drains it; a burst from several axes must fit
-  if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
-  return q;
+  q.deadline().period = duration_ms(10.0);
+  automatic_liveliness(q.liveliness(), 2.0, 1.0);
+  q.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
+}
+
+// Diagnostics: 10 Hz, each one a summary worth having: reliable, newest only,
+// never blocking the axis thread for long.
+void diagnostics_writer_defaults(fdds::DataWriterQos& q) {
+  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  q.reliability().max_blocking_time = duration_ms(1.0);
+  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
+  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+  q.history().depth = 1;
+  q.deadline().period = duration_ms(500.0);
+  automatic_liveliness(q.liveliness(), 1.0, 0.5);
+  q.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
+}
+
+void diagnostics_reader_defaults(fdds::DataReaderQos& q) {
+  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
+  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+  q.history().depth = 4;
+  q.deadline().period = duration_ms(1000.0);
+  automatic_liveliness(q.liveliness(), 2.0, 1.0);
+}
+
+// Late joiners must learn what each axis is: reliable, transient-local, last value per axis.
+template <class Q>
+void description_defaults(Q& q) {
+  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  q.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
+  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+  q.history().depth = 1;
 }
 
 }  // namespace
 
 // ---------------------------------------------------------------- DdsContext
 
+bool DdsOptions::type_information_from_env() {
+  const char* v = std::getenv("VE_DDS_TYPE_INFORMATION");
+  return v != nullptr && (std::string(v) == "1" || std::string(v) == "true" || std::string(v) == "yes");
+}
+
 std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::string& error) {
   auto* factory = fdds::DomainParticipantFactory::get_instance();
+  // FASTRTPS_DEFAULT_PROFILES_FILE / DEFAULT_FASTRTPS_PROFILES.xml, then the machine's file.
+  factory->load_profiles();
   if (!options.profiles_file.empty() &&
       factory->load_XML_profiles_file(options.profiles_file) != ReturnCode_t::RETCODE_OK) {
     error = "cannot load DDS profiles file '" + options.profiles_file + "'";
@@ -73,7 +134,14 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
 
   std::unique_ptr<DdsContext> ctx(new DdsContext());
   fdds::DomainParticipantQos pq;
-  factory->get_default_participant_qos(pq);
+  const char* env_profiles = std::getenv("FASTRTPS_DEFAULT_PROFILES_FILE");
+  ctx->profiles_loaded_ = !options.profiles_file.empty() || (env_profiles != nullptr && *env_profiles != '\0');
+  if (ctx->profiles_loaded_ &&
+      factory->get_participant_qos_from_profile(profile::kParticipant, pq) == ReturnCode_t::RETCODE_OK) {
+    ctx->participant_from_profile_ = true;
+  } else {
+    factory->get_default_participant_qos(pq);
+  }
   pq.name(options.participant_name);
   ctx->participant_ = factory->create_participant(static_cast<fdds::DomainId_t>(options.domain), pq);
   if (ctx->participant_ == nullptr) {
@@ -82,23 +150,46 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
   }
   fdds::TypeSupport state_type(new ve::dds::EncoderStatePubSubType());
   fdds::TypeSupport description_type(new ve::dds::AxisDescriptionPubSubType());
-  state_type->auto_fill_type_object(true);
-  state_type->auto_fill_type_information(true);
-  description_type->auto_fill_type_object(true);
-  description_type->auto_fill_type_information(true);
-  if (state_type.register_type(ctx->participant_) != ReturnCode_t::RETCODE_OK ||
-      description_type.register_type(ctx->participant_) != ReturnCode_t::RETCODE_OK) {
-    error = "cannot register the DDS types";
-    return nullptr;
+  fdds::TypeSupport diagnostics_type(new ve::dds::DiagnosticsPubSubType());
+  fdds::TypeSupport command_type(new ve::dds::CalibrationCommandPubSubType());
+  fdds::TypeSupport cal_status_type(new ve::dds::CalibrationStatusPubSubType());
+  // TypeObject in discovery (PID_TYPE_OBJECT): generic Fast DDS tools can build
+  // the types. XTypes 1.3 TypeInformation (PID 0x75) only on request: Cyclone DDS
+  // 0.10 rejects Fast DDS 2.9's encoding of it and then ignores the endpoint.
+  for (auto* t : {&state_type, &description_type, &diagnostics_type, &command_type, &cal_status_type}) {
+    (*t)->auto_fill_type_object(true);
+    (*t)->auto_fill_type_information(options.type_information);
+    if (t->register_type(ctx->participant_) != ReturnCode_t::RETCODE_OK) {
+      error = "cannot register the DDS type " + t->get_type_name();
+      return nullptr;
+    }
   }
   ctx->state_topic_ = ctx->participant_->create_topic(kStateTopic, state_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
   ctx->description_topic_ =
       ctx->participant_->create_topic(kDescriptionTopic, description_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
-  if (ctx->state_topic_ == nullptr || ctx->description_topic_ == nullptr) {
+  ctx->diagnostics_topic_ =
+      ctx->participant_->create_topic(kDiagnosticsTopic, diagnostics_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+  if (ctx->state_topic_ == nullptr || ctx->description_topic_ == nullptr || ctx->diagnostics_topic_ == nullptr) {
     error = "cannot create the DDS topics";
     return nullptr;
   }
   return ctx;
+}
+
+bool DdsContext::writer_qos_from_profile(const char* name, fdds::DataWriterQos& q) {
+  if (!profiles_loaded_ || publisher() == nullptr) return false;
+  fdds::DataWriterQos from;
+  if (publisher_->get_datawriter_qos_from_profile(name, from) != ReturnCode_t::RETCODE_OK) return false;
+  q = from;
+  return true;
+}
+
+bool DdsContext::reader_qos_from_profile(const char* name, fdds::DataReaderQos& q) {
+  if (!profiles_loaded_ || subscriber() == nullptr) return false;
+  fdds::DataReaderQos from;
+  if (subscriber_->get_datareader_qos_from_profile(name, from) != ReturnCode_t::RETCODE_OK) return false;
+  q = from;
+  return true;
 }
 
 fdds::Publisher* DdsContext::publisher() {
@@ -120,49 +211,176 @@ DdsContext::~DdsContext() {
 
 // ---------------------------------------------------------------- StateWriter
 
+struct StateWriter::Slot {
+  fdds::DataWriter* writer = nullptr;  ///< this axis' own writer (its own lock and deadline timer)
+  std::uint32_t axis_id = 0;
+  std::string name;
+  eprosima::fastrtps::rtps::InstanceHandle_t handle;
+  DeadlineCounters counters;
+  std::mutex episode_mutex;           ///< start (listener thread) vs end (axis thread)
+  std::uint64_t missed_at_start = 0;
+  std::int64_t episode_start_ns = 0;
+  bool retired = false;
+};
+
 class StateWriter::Listener : public fdds::DataWriterListener {
  public:
-  void on_offered_deadline_missed(fdds::DataWriter*, const fdds::OfferedDeadlineMissedStatus& s) override {
-    total.store(static_cast<std::uint64_t>(s.total_count));
-    std::lock_guard<std::mutex> lock(mutex);
-    ++per_instance[s.last_instance_handle];
+  explicit Listener(StateWriter& w) : writer(w) {}
+  void on_offered_deadline_missed(fdds::DataWriter* w, const fdds::OfferedDeadlineMissedStatus& s) override {
+    // One call per missed period of one instance; slots are fixed before publishing starts.
+    for (auto& slot : writer.slots_) {
+      if (slot->writer != w || slot->handle != s.last_instance_handle) continue;
+      const auto now = steady_ns();
+      const auto missed = slot->counters.missed.fetch_add(1) + 1;
+      slot->counters.last_miss_ns.store(now);
+      std::lock_guard<std::mutex> lock(slot->episode_mutex);
+      if (!slot->counters.in_episode.load()) {
+        slot->counters.in_episode.store(true);
+        slot->counters.episodes.fetch_add(1);
+        slot->missed_at_start = missed - 1;
+        slot->episode_start_ns = now;
+        spdlog::warn("axis '{}' (id {}): offered deadline of {} ms missed: no sample published in time "
+                     "(episode {}; logged once until it is over)",
+                     slot->name, slot->axis_id, writer.deadline_ms_, slot->counters.episodes.load());
+      }
+      return;
+    }
   }
   void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
     matched.store(s.current_count);
   }
-  std::atomic<std::uint64_t> total{0};
+  StateWriter& writer;
   std::atomic<int> matched{0};
-  std::mutex mutex;
-  std::map<eprosima::fastrtps::rtps::InstanceHandle_t, std::uint64_t> per_instance;
 };
 
-StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), listener_(std::make_unique<Listener>()) {
+StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), listener_(std::make_unique<Listener>(*this)) {
   auto* pub = ctx_.publisher();
   if (pub == nullptr) return;
-  fdds::StatusMask mask = fdds::StatusMask::offered_deadline_missed() << fdds::StatusMask::publication_matched();
-  writer_ = pub->create_datawriter(ctx_.state_topic(), state_writer_qos(pub, deadline_ms), listener_.get(), mask);
+  fdds::DataWriterQos q;
+  pub->get_default_datawriter_qos(q);
+  from_profile_ = ctx_.writer_qos_from_profile(profile::kStateWriter, q);
+  if (!from_profile_) {
+    state_writer_defaults(q);
+    if (deadline_ms <= 0) q.deadline().period = eprosima::fastrtps::c_TimeInfinite;
+  }
+  if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
+  deadline_ms_ = to_ms(q.deadline().period);
+  qos_ = std::make_unique<fdds::DataWriterQos>(q);
+  // The shared writer: matching status, and samples of axes without their own writer.
+  writer_ = pub->create_datawriter(ctx_.state_topic(), q, listener_.get(), fdds::StatusMask::publication_matched());
 }
 
 StateWriter::~StateWriter() {
-  if (writer_ != nullptr) ctx_.publisher()->delete_datawriter(writer_);
+  for (auto& slot : slots_) {
+    if (slot->writer == nullptr) continue;
+    slot->writer->set_listener(nullptr);
+    ctx_.publisher()->delete_datawriter(slot->writer);
+  }
+  if (writer_ != nullptr) {
+    writer_->set_listener(nullptr);
+    ctx_.publisher()->delete_datawriter(writer_);
+  }
+}
+
+int StateWriter::add_axis(std::uint32_t axis_id, const std::string& name) {
+  auto slot = std::make_unique<Slot>();
+  slot->axis_id = axis_id;
+  slot->name = name;
+  // The instance handle of a key <= 16 bytes is computed from the key alone; the
+  // instance is not registered here, so no deadline runs before the first write.
+  ve::dds::EncoderState key{};
+  key.axis_id(axis_id);
+  ve::dds::EncoderStatePubSubType type;
+  type.getKey(&key, &slot->handle, false);
+  // One writer per axis: a stalled or bursting axis never holds the lock another
+  // axis writes through, so their deadlines are independent inside the process too.
+  slot->writer = ctx_.publisher()->create_datawriter(ctx_.state_topic(), *qos_, listener_.get(),
+                                                     fdds::StatusMask::offered_deadline_missed());
+  if (slot->writer == nullptr) return -1;
+  slots_.push_back(std::move(slot));
+  return static_cast<int>(slots_.size() - 1);
+}
+
+const DeadlineCounters& StateWriter::counters(int slot) const { return slots_.at(static_cast<std::size_t>(slot))->counters; }
+
+void StateWriter::poll_deadline_episode(int index, std::int64_t now_ns) {
+  Slot& slot = *slots_[static_cast<std::size_t>(index)];
+  if (!slot.counters.in_episode.load(std::memory_order_relaxed)) return;
+  const std::int64_t quiet_ns = std::max<std::int64_t>(500000000, static_cast<std::int64_t>(10 * deadline_ms_ * 1e6));
+  if (now_ns - slot.counters.last_miss_ns.load() < quiet_ns) return;
+  std::lock_guard<std::mutex> lock(slot.episode_mutex);
+  if (!slot.counters.in_episode.load()) return;
+  slot.counters.in_episode.store(false);
+  spdlog::info("axis '{}' (id {}): deadline episode {} over: {} miss(es) in {:.3f} s", slot.name, slot.axis_id,
+               slot.counters.episodes.load(), slot.counters.missed.load() - slot.missed_at_start,
+               (slot.counters.last_miss_ns.load() - slot.episode_start_ns) * 1e-9);
+}
+
+void StateWriter::retire_axis(int index) {
+  Slot& slot = *slots_[static_cast<std::size_t>(index)];
+  if (slot.retired || writer_ == nullptr) return;
+  slot.retired = true;
+  ve::dds::EncoderState key{};
+  key.axis_id(slot.axis_id);
+  slot.writer->unregister_instance(&key, slot.handle);
+}
+
+bool StateWriter::write(int slot, const ve::dds::EncoderState& sample) {
+  return slots_[static_cast<std::size_t>(slot)]->writer->write(const_cast<ve::dds::EncoderState*>(&sample));
 }
 
 bool StateWriter::write(const ve::dds::EncoderState& sample) {
+  for (auto& slot : slots_)
+    if (slot->axis_id == sample.axis_id()) return slot->writer->write(const_cast<ve::dds::EncoderState*>(&sample));
   return writer_->write(const_cast<ve::dds::EncoderState*>(&sample));
 }
 
-std::uint64_t StateWriter::deadline_missed_total() const { return listener_->total.load(); }
+std::uint64_t StateWriter::deadline_missed_total() const {
+  std::uint64_t n = 0;
+  for (const auto& slot : slots_) n += slot->counters.missed.load();
+  return n;
+}
 
 std::uint64_t StateWriter::deadline_missed(std::uint32_t axis_id) const {
-  ve::dds::EncoderState key{};
-  key.axis_id(axis_id);
-  const auto handle = writer_->lookup_instance(&key);
-  std::lock_guard<std::mutex> lock(listener_->mutex);
-  const auto it = listener_->per_instance.find(handle);
-  return it == listener_->per_instance.end() ? 0 : it->second;
+  for (const auto& slot : slots_)
+    if (slot->axis_id == axis_id) return slot->counters.missed.load();
+  return 0;
 }
 
 int StateWriter::matched_readers() const { return listener_->matched.load(); }
+
+// ---------------------------------------------------------------- DiagnosticsWriter
+
+class DiagnosticsWriter::Listener : public fdds::DataWriterListener {
+ public:
+  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
+    matched.store(s.current_count);
+  }
+  std::atomic<int> matched{0};
+};
+
+DiagnosticsWriter::DiagnosticsWriter(DdsContext& ctx) : ctx_(ctx), listener_(std::make_unique<Listener>()) {
+  auto* pub = ctx_.publisher();
+  if (pub == nullptr) return;
+  fdds::DataWriterQos q;
+  pub->get_default_datawriter_qos(q);
+  from_profile_ = ctx_.writer_qos_from_profile(profile::kDiagnosticsWriter, q);
+  if (!from_profile_) diagnostics_writer_defaults(q);
+  writer_ = pub->create_datawriter(ctx_.diagnostics_topic(), q, listener_.get(), fdds::StatusMask::publication_matched());
+}
+
+DiagnosticsWriter::~DiagnosticsWriter() {
+  if (writer_ != nullptr) {
+    writer_->set_listener(nullptr);
+    ctx_.publisher()->delete_datawriter(writer_);
+  }
+}
+
+bool DiagnosticsWriter::write(const ve::dds::Diagnostics& d) {
+  return writer_->write(const_cast<ve::dds::Diagnostics*>(&d));
+}
+
+int DiagnosticsWriter::matched_readers() const { return listener_->matched.load(); }
 
 // ---------------------------------------------------------------- DescriptionWriter
 
@@ -171,11 +389,7 @@ DescriptionWriter::DescriptionWriter(DdsContext& ctx) : ctx_(ctx) {
   if (pub == nullptr) return;
   fdds::DataWriterQos q;
   pub->get_default_datawriter_qos(q);
-  // Late joiners must learn what each axis is: reliable, transient-local, last value per axis.
-  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
-  q.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 1;
+  if (!ctx_.writer_qos_from_profile(profile::kDescriptionWriter, q)) description_defaults(q);
   writer_ = pub->create_datawriter(ctx_.description_topic(), q);
 }
 
@@ -191,11 +405,27 @@ bool DescriptionWriter::write(const ve::dds::AxisDescription& d) {
 
 class StateReader::Listener : public fdds::DataReaderListener {
  public:
-  explicit Listener(Callback cb) : callback(std::move(cb)) {}
+  Listener(Callback cb, DiagnosticsCallback dcb) : callback(std::move(cb)), diagnostics_callback(std::move(dcb)) {}
 
   void on_data_available(fdds::DataReader* reader) override {
     fdds::SampleInfo info;
-    if (reader->get_topicdescription()->get_name() == kDescriptionTopic) {
+    if (reader == diagnostics_reader) {
+      ve::dds::Diagnostics diag;
+      while (reader->take_next_sample(&diag, &info) == ReturnCode_t::RETCODE_OK) {
+        if (!info.valid_data) continue;
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          auto& a = axes[diag.axis_id()];
+          a.axis_id = diag.axis_id();
+          a.diagnostics = diag;
+          ++a.diagnostics_received;
+        }
+        diagnostics_total.fetch_add(1);
+        if (diagnostics_callback) diagnostics_callback(diag);
+      }
+      return;
+    }
+    if (reader == description_reader) {
       ve::dds::AxisDescription d;
       while (reader->take_next_sample(&d, &info) == ReturnCode_t::RETCODE_OK) {
         if (!info.valid_data) continue;
@@ -237,44 +467,64 @@ class StateReader::Listener : public fdds::DataReaderListener {
   }
 
   void on_subscription_matched(fdds::DataReader* reader, const fdds::SubscriptionMatchedStatus& st) override {
-    if (reader->get_topicdescription()->get_name() == kStateTopic) matched.store(st.current_count);
+    if (reader == state_reader) matched.store(st.current_count);
+    if (reader == diagnostics_reader) diagnostics_matched.store(st.current_count);
   }
 
   Callback callback;
+  DiagnosticsCallback diagnostics_callback;
+  // Set before the readers exist, so a callback can compare against them.
+  std::atomic<fdds::DataReader*> state_reader{nullptr}, description_reader{nullptr}, diagnostics_reader{nullptr};
   std::mutex mutex;
   std::map<std::uint32_t, AxisStats> axes;
   std::map<std::uint32_t, std::deque<std::chrono::steady_clock::time_point>> arrivals;
   std::map<eprosima::fastrtps::rtps::InstanceHandle_t, std::uint32_t> handles;
   std::atomic<std::uint64_t> missed_total{0};
   std::atomic<std::uint64_t> total{0};
+  std::atomic<std::uint64_t> diagnostics_total{0};
   std::atomic<int> matched{0};
+  std::atomic<int> diagnostics_matched{0};
 };
 
-StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample)
-    : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_sample))) {
+StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample, DiagnosticsCallback on_diagnostics)
+    : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_sample), std::move(on_diagnostics))) {
   auto* sub = ctx_.subscriber();
   if (sub == nullptr) return;
   fdds::StatusMask mask = fdds::StatusMask::data_available() << fdds::StatusMask::requested_deadline_missed()
                           << fdds::StatusMask::subscription_matched();
-  state_reader_ = sub->create_datareader(ctx_.state_topic(), state_reader_qos(sub, deadline_ms), listener_.get(), mask);
+  // The readers are created without a listener and get it once the listener knows them.
+  fdds::DataReaderQos sq;
+  sub->get_default_datareader_qos(sq);
+  if (!ctx_.reader_qos_from_profile(profile::kStateReader, sq)) state_reader_defaults(sq);
+  sq.deadline().period = deadline_ms > 0 ? duration_ms(deadline_ms) : eprosima::fastrtps::c_TimeInfinite;
   fdds::DataReaderQos dq;
   sub->get_default_datareader_qos(dq);
-  dq.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
-  dq.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
-  dq.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  dq.history().depth = 1;
-  description_reader_ = sub->create_datareader(ctx_.description_topic(), dq, listener_.get(), mask);
+  if (!ctx_.reader_qos_from_profile(profile::kDescriptionReader, dq)) description_defaults(dq);
+  fdds::DataReaderQos gq;
+  sub->get_default_datareader_qos(gq);
+  if (!ctx_.reader_qos_from_profile(profile::kDiagnosticsReader, gq)) diagnostics_reader_defaults(gq);
+
+  state_reader_ = sub->create_datareader(ctx_.state_topic(), sq, nullptr, fdds::StatusMask::none());
+  description_reader_ = sub->create_datareader(ctx_.description_topic(), dq, nullptr, fdds::StatusMask::none());
+  diagnostics_reader_ = sub->create_datareader(ctx_.diagnostics_topic(), gq, nullptr, fdds::StatusMask::none());
+  listener_->state_reader = state_reader_;
+  listener_->description_reader = description_reader_;
+  listener_->diagnostics_reader = diagnostics_reader_;
+  for (auto* r : {state_reader_, description_reader_, diagnostics_reader_}) {
+    if (r == nullptr) continue;
+    r->set_listener(listener_.get(), mask);
+    // Samples that arrived before the listener was attached (transient-local
+    // description): deliver them now.
+    listener_->on_data_available(r);
+  }
 }
 
 StateReader::~StateReader() {
   // Stop callbacks before the listener goes away.
-  if (state_reader_ != nullptr) {
-    state_reader_->set_listener(nullptr);
-    ctx_.subscriber()->delete_datareader(state_reader_);
-  }
-  if (description_reader_ != nullptr) {
-    description_reader_->set_listener(nullptr);
-    ctx_.subscriber()->delete_datareader(description_reader_);
+  for (auto* r : {state_reader_, description_reader_, diagnostics_reader_}) {
+    if (r == nullptr) continue;
+    r->set_listener(nullptr);
+    ctx_.subscriber()->delete_datareader(r);
   }
 }
 
@@ -293,6 +543,8 @@ std::vector<AxisStats> StateReader::snapshot() {
 
 std::uint64_t StateReader::deadline_missed_total() const { return listener_->missed_total.load(); }
 int StateReader::matched_writers() const { return listener_->matched.load(); }
+int StateReader::matched_diagnostics_writers() const { return listener_->diagnostics_matched.load(); }
 std::uint64_t StateReader::total_received() const { return listener_->total.load(); }
+std::uint64_t StateReader::diagnostics_received() const { return listener_->diagnostics_total.load(); }
 
 }  // namespace ve::app

@@ -1,7 +1,8 @@
-// DDS side of the product: one participant per process, the encoder-state and
-// axis-description topics, their writers (run) and readers (monitor, tests).
-// Everything Fast DDS is behind this header so that the rest of the app deals in
-// plain structs.
+// DDS side of the product: one participant per process, the encoder-state,
+// axis-description and diagnostics topics, their writers (run) and readers
+// (monitor, tests). QoS come from the XML profiles (deploy/dds-profiles.xml) when
+// they are loaded, else from identical built-in values. Everything Fast DDS is
+// behind this header so that the rest of the app deals in plain structs.
 #pragma once
 
 #include <atomic>
@@ -22,17 +23,44 @@ class Subscriber;
 class Topic;
 class DataWriter;
 class DataReader;
+class DataWriterQos;
+class DataReaderQos;
 }  // namespace eprosima::fastdds::dds
 
 namespace ve::app {
 
 inline constexpr const char* kStateTopic = "ve/encoder_state";
 inline constexpr const char* kDescriptionTopic = "ve/axis_description";
+inline constexpr const char* kDiagnosticsTopic = "ve/diagnostics";
+inline constexpr const char* kCalibrationCommandTopic = "ve/calibration_command";
+inline constexpr const char* kCalibrationStatusTopic = "ve/calibration_status";
+
+/// Profile names in deploy/dds-profiles.xml.
+namespace profile {
+inline constexpr const char* kParticipant = "ve_participant";
+inline constexpr const char* kStateWriter = "ve_state_writer";
+inline constexpr const char* kStateReader = "ve_state_reader";
+inline constexpr const char* kDiagnosticsWriter = "ve_diagnostics_writer";
+inline constexpr const char* kDiagnosticsReader = "ve_diagnostics_reader";
+inline constexpr const char* kDescriptionWriter = "ve_description_writer";
+inline constexpr const char* kDescriptionReader = "ve_description_reader";
+inline constexpr const char* kCalibrationCommandWriter = "ve_calibration_command_writer";
+inline constexpr const char* kCalibrationCommandReader = "ve_calibration_command_reader";
+inline constexpr const char* kCalibrationStatusWriter = "ve_calibration_status_writer";
+inline constexpr const char* kCalibrationStatusReader = "ve_calibration_status_reader";
+}  // namespace profile
 
 struct DdsOptions {
   int domain = 0;
-  std::string profiles_file;       ///< Fast DDS XML profiles, loaded before the participant
+  /// Fast DDS XML profiles, loaded before the participant. Profiles are also
+  /// found in FASTRTPS_DEFAULT_PROFILES_FILE (Fast DDS loads it by itself).
+  std::string profiles_file;
   std::string participant_name = "virtual-encoder";
+  /// Announce XTypes TypeInformation (for TypeLookup-based tools). Off by default:
+  /// Cyclone DDS 0.10 rejects Fast DDS 2.9's TypeInformation and then ignores our
+  /// endpoints. Default from the environment: VE_DDS_TYPE_INFORMATION=1 turns it on.
+  bool type_information = type_information_from_env();
+  static bool type_information_from_env();
 };
 
 /// Owns the participant and the topics. Deleting it deletes every entity it
@@ -48,26 +76,65 @@ class DdsContext {
   eprosima::fastdds::dds::DomainParticipant* participant() const { return participant_; }
   eprosima::fastdds::dds::Topic* state_topic() const { return state_topic_; }
   eprosima::fastdds::dds::Topic* description_topic() const { return description_topic_; }
+  eprosima::fastdds::dds::Topic* diagnostics_topic() const { return diagnostics_topic_; }
   eprosima::fastdds::dds::Publisher* publisher();
   eprosima::fastdds::dds::Subscriber* subscriber();
+
+  /// The participant was made from the "ve_participant" profile (else built-in QoS).
+  bool participant_from_profile() const { return participant_from_profile_; }
+  /// Fill `q` from a named profile; false (q untouched) when no such profile is loaded.
+  bool writer_qos_from_profile(const char* name, eprosima::fastdds::dds::DataWriterQos& q);
+  bool reader_qos_from_profile(const char* name, eprosima::fastdds::dds::DataReaderQos& q);
 
  private:
   DdsContext() = default;
   eprosima::fastdds::dds::DomainParticipant* participant_ = nullptr;
   eprosima::fastdds::dds::Topic* state_topic_ = nullptr;
   eprosima::fastdds::dds::Topic* description_topic_ = nullptr;
+  eprosima::fastdds::dds::Topic* diagnostics_topic_ = nullptr;
+  bool participant_from_profile_ = false;
+  bool profiles_loaded_ = false;
   eprosima::fastdds::dds::Publisher* publisher_ = nullptr;
   eprosima::fastdds::dds::Subscriber* subscriber_ = nullptr;
+};
+
+/// Offered-deadline bookkeeping of one axis instance (see StateWriter::add_axis).
+struct DeadlineCounters {
+  std::atomic<std::uint64_t> missed{0};     ///< offered deadline misses of this instance
+  std::atomic<std::uint64_t> episodes{0};   ///< runs of misses without a quiet time in between
+  std::atomic<bool> in_episode{false};
+  std::atomic<std::int64_t> last_miss_ns{0};  ///< steady clock
 };
 
 /// Writer of ve/encoder_state for all axes of this process (one instance per axis).
 class StateWriter {
  public:
+  /// deadline_ms > 0 replaces the profile's offered deadline; <= 0 keeps the profile's
+  /// (or, without profiles, offers none).
   StateWriter(DdsContext& ctx, double deadline_ms);
   ~StateWriter();
   bool ok() const { return writer_ != nullptr; }
-  /// Thread-safe: Fast DDS serialises writes per writer.
+  bool from_profile() const { return from_profile_; }
+  double deadline_ms() const { return deadline_ms_; }
+
+  /// Before publishing starts (not thread-safe): an axis this writer publishes.
+  /// Its deadline misses are counted per instance and logged once per episode
+  /// (warn at the first miss, info when it is over). The axis gets its own
+  /// DataWriter on the topic (same QoS). Returns the slot, -1 on failure.
+  int add_axis(std::uint32_t axis_id, const std::string& name);
+  const DeadlineCounters& counters(int slot) const;
+  /// From the axis thread, now and then: ends (and logs) a miss episode after a
+  /// quiet time of max(0.5 s, 10 deadlines). Cheap when nothing happened.
+  void poll_deadline_episode(int slot, std::int64_t steady_now_ns);
+  /// The axis stopped publishing: unregister its instance (no more deadline misses).
+  void retire_axis(int slot);
+
+  /// The axis thread's write, through the axis' own writer.
+  bool write(int slot, const ve::dds::EncoderState& sample);
+  /// Thread-safe: Fast DDS serialises writes per writer. Finds the axis' writer
+  /// (the shared one for an axis that was not added).
   bool write(const ve::dds::EncoderState& sample);
+  /// Offered deadline misses of the added axes.
   std::uint64_t deadline_missed_total() const;
   /// Offered deadline misses of one axis instance.
   std::uint64_t deadline_missed(std::uint32_t axis_id) const;
@@ -75,9 +142,34 @@ class StateWriter {
 
  private:
   class Listener;
+  friend class Listener;
+  struct Slot;
+  DdsContext& ctx_;
+  std::unique_ptr<Listener> listener_;
+  std::vector<std::unique_ptr<Slot>> slots_;
+  std::unique_ptr<eprosima::fastdds::dds::DataWriterQos> qos_;
+  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
+  bool from_profile_ = false;
+  double deadline_ms_ = 0.0;
+};
+
+/// Writer of ve/diagnostics (about 10 Hz per axis, reliable keep-last).
+class DiagnosticsWriter {
+ public:
+  explicit DiagnosticsWriter(DdsContext& ctx);
+  ~DiagnosticsWriter();
+  bool ok() const { return writer_ != nullptr; }
+  bool from_profile() const { return from_profile_; }
+  /// Thread-safe.
+  bool write(const ve::dds::Diagnostics& d);
+  int matched_readers() const;
+
+ private:
+  class Listener;
   DdsContext& ctx_;
   std::unique_ptr<Listener> listener_;
   eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
+  bool from_profile_ = false;
 };
 
 /// Writer of ve/axis_description (reliable, transient-local).
@@ -103,22 +195,29 @@ struct AxisStats {
   double rate_hz = 0.0;                 ///< measured over the last second
   bool have_description = false;
   ve::dds::AxisDescription description{};
+  std::uint64_t diagnostics_received = 0;
+  ve::dds::Diagnostics diagnostics{};     ///< the last one (valid when diagnostics_received > 0)
 };
 
-/// Reader of both topics with per-axis statistics; optional callback per sample
-/// (called on the Fast DDS listener thread).
+/// Reader of the state, description and diagnostics topics with per-axis
+/// statistics; optional callbacks per sample (called on the Fast DDS listener thread).
 class StateReader {
  public:
   using Callback = std::function<void(const ve::dds::EncoderState&)>;
-  /// deadline_ms <= 0: no requested deadline.
-  StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample = {});
+  using DiagnosticsCallback = std::function<void(const ve::dds::Diagnostics&)>;
+  /// deadline_ms > 0: requested deadline of the state stream; <= 0: none requested.
+  StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample = {}, DiagnosticsCallback on_diagnostics = {});
   ~StateReader();
-  bool ok() const { return state_reader_ != nullptr && description_reader_ != nullptr; }
+  bool ok() const {
+    return state_reader_ != nullptr && description_reader_ != nullptr && diagnostics_reader_ != nullptr;
+  }
 
   std::vector<AxisStats> snapshot();
   std::uint64_t deadline_missed_total() const;
   int matched_writers() const;
+  int matched_diagnostics_writers() const;
   std::uint64_t total_received() const;
+  std::uint64_t diagnostics_received() const;
 
  private:
   class Listener;
@@ -127,6 +226,7 @@ class StateReader {
   std::unique_ptr<Listener> listener_;
   eprosima::fastdds::dds::DataReader* state_reader_ = nullptr;
   eprosima::fastdds::dds::DataReader* description_reader_ = nullptr;
+  eprosima::fastdds::dds::DataReader* diagnostics_reader_ = nullptr;
 };
 
 }  // namespace ve::app

@@ -25,6 +25,10 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--wait-for-subscriber", run.wait_for_subscriber_s,
                       "Wait up to this many seconds for a first subscriber before starting the sensors")
       ->check(CLI::NonNegativeNumber);
+  // Test and diagnostic hook: stall one axis' loop once (the deadline tests use it).
+  run_cmd->add_option("--stall-axis", run.stall_axis, "Test/diagnostic: stall this axis' loop once")->group("");
+  run_cmd->add_option("--stall-after-s", run.stall_after_s)->group("");
+  run_cmd->add_option("--stall-for-s", run.stall_for_s)->group("");
   run_cmd->add_option("--status-period", run.status_period_s, "Seconds between status lines")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
@@ -74,6 +78,19 @@ int main(int argc, char** argv) {
   ev_cmd->add_flag("--json", ev.json, "Print the statistics as JSON");
   ev_cmd->add_option("--home", ev.home_m, "Start-up position hint [m] (default: the axis' homing.position_m)");
 
+  // ---- sensor-node: SocketCAN sensor node emulator (issue 6) ----
+  ve::app::SensorNodeOptions node;
+  auto* node_cmd = app.add_subcommand("sensor-node", "Emulate a CAN sensor node: send the simulated axis' samples in a frame layout");
+  node_cmd->add_option("--config,-c", node.config, "Machine file with a simulated axis (default: the built-in one)");
+  node_cmd->add_option("--axis,-a", node.axis, "Axis name (default: the first)");
+  node_cmd->add_option("--can", node.can, "CAN interface to send on")->capture_default_str();
+  node_cmd->add_option("--layout,-l", node.layout, "Frame layout file (config/can/*.yaml)")->required();
+  node_cmd->add_option("--duration", node.duration_s, "Stop after this many seconds (default: until signalled)")
+      ->check(CLI::NonNegativeNumber);
+  node_cmd->add_option("--drop-at", node.drop_at, "Fault injection: first frame not sent");
+  node_cmd->add_option("--drop-count", node.drop_count, "Fault injection: frames not sent in a row from --drop-at");
+  // ---- end sensor-node ----
+
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%H:%M:%S.%e %^%-5l%$ %v");
@@ -86,6 +103,7 @@ int main(int argc, char** argv) {
   if (*rec_cmd) return ve::app::record_command(rec);
   if (*ev_cmd) return ve::app::evaluate_command(ev);
   if (*cal_cmd) return ve::app::calibrate_command(cal);
+  if (*node_cmd) return ve::app::sensor_node_command(node);  // issue 6
   if (*mon_cmd) {
     if (mon_domain >= 0) mon.domain = mon_domain;
     return ve::app::monitor_command(mon);

@@ -17,6 +17,7 @@
 
 #include "config/embedded.hpp"
 #include "core/sample.hpp"
+#include "socketcan/can_layout_file.hpp"  // socketcan driver layout files (issue 6)
 
 namespace ve::config {
 
@@ -933,6 +934,7 @@ class MachineLoader {
       if (referenced_file(cal, resolved, !options_.calibration_must_exist))
         axis.calibration_file = files_.stored(resolved);
     }
+    current_motor_ = m;  // socketcan layout cross-check (issue 6)
     read_driver(a.map("driver"), axis.driver, travel);
     {
       Map out = a.map("output");
@@ -961,7 +963,19 @@ class MachineLoader {
   }
 
   void read_driver(Map d, DriverConfig& drv, double travel) {
-    d.get_enum("type", drv.kind, {{"sim", DriverConfig::Kind::sim}, {"replay", DriverConfig::Kind::replay}});
+    d.get_enum("type", drv.kind,
+               {{"sim", DriverConfig::Kind::sim},
+                {"replay", DriverConfig::Kind::replay},
+                {"socketcan", DriverConfig::Kind::socketcan}});
+    // ---- socketcan driver (issue 6) ----
+    if (drv.kind == DriverConfig::Kind::socketcan) {
+      for (const char* k : {"noise_seed", "profile", "imperfections", "realtime"}) d.reject(k, "only used with type: sim");
+      d.reject("log", "only used with type: replay");
+      read_socketcan(d, drv.socketcan);
+      return;
+    }
+    for (const char* k : {"interface", "layout", "timeout_ms"}) d.reject(k, "only used with type: socketcan");
+    // ---- end socketcan ----
     if (drv.kind == DriverConfig::Kind::replay) {
       const std::string why = "only used with type: sim";
       for (const char* k : {"noise_seed", "profile", "imperfections"}) d.reject(k, why);
@@ -999,6 +1013,39 @@ class MachineLoader {
       im.get("frame_accelerometer", c.frame_accelerometer);
     }
   }
+
+  // ---- socketcan driver (issue 6) ----
+  void read_socketcan(Map& d, SocketCanConfig& c) {
+    d.require("interface", c.interface, Check<std::string>([](const std::string& s) {
+                return (!s.empty() && s.size() <= 15 && s.find('/') == std::string::npos && s.find(' ') == std::string::npos)
+                           ? std::string()
+                           : "must be a network interface name of 1 to 15 characters, got '" + s + "'";
+              }));
+    d.get("timeout_ms", c.timeout_ms, schema::in_range(0.1, 60000.0));
+    const Value layout = d.required("layout");
+    std::string resolved;
+    if (!layout.present() || !referenced_file(layout, resolved)) return;
+    c.layout_file = files_.stored(resolved);
+    std::string text, why;
+    if (!files_.read(resolved, text, why)) {
+      layout.error("cannot read layout file: " + why);
+      return;
+    }
+    const std::size_t before = errors_.size();
+    if (!socketcan::load_can_layout_text(files_.display(resolved), text, c.layout, errors_) || errors_.size() != before)
+      return;
+    if (current_motor_ && current_motor_->ok) {
+      const core::MotorConfig& m = current_motor_->motor;
+      if (c.layout.hall_count != m.hall.count)
+        layout.error("the layout carries " + std::to_string(c.layout.hall_count) + " Hall signals but motor '" + m.name +
+                     "' has " + std::to_string(m.hall.count) + " sensors");
+      if (std::abs(c.layout.sample_rate_hz - m.sample_rate_hz) > 1e-9 * m.sample_rate_hz)
+        layout.error("the layout's sample_rate_hz " + format_number(c.layout.sample_rate_hz) + " differs from motor '" +
+                     m.name + "' (" + format_number(m.sample_rate_hz) + ")");
+    }
+  }
+  const MotorEntry* current_motor_ = nullptr;  // the axis being read, for cross-checks
+  // ---- end socketcan ----
 
   static void read_profile(Map p, sim::MotionProfileConfig& c, double travel) {
     using K = sim::MotionProfileConfig::Kind;

@@ -8,15 +8,27 @@
 
 #include "core/motor.hpp"
 #include "sim/sim_config.hpp"
+#include "socketcan/can_layout.hpp"  // socketcan driver (issue 6)
 
 namespace ve::config {
 
+// ---- socketcan driver (issue 6) ----
+/// `driver: {type: socketcan, interface: vcan0, layout: ../can/classic-4hall.yaml, timeout_ms: 20}`
+struct SocketCanConfig {
+  std::string interface = "can0";  ///< network interface name (at most 15 characters)
+  std::string layout_file;         ///< resolved path of the frame layout file
+  socketcan::CanLayout layout;     ///< loaded and checked from layout_file
+  double timeout_ms = 20.0;        ///< read() returns timeout after this long without a sample
+};
+// ---- end socketcan ----
+
 struct DriverConfig {
-  enum class Kind { sim, replay };
+  enum class Kind { sim, replay, socketcan };
   Kind kind = Kind::sim;
   sim::SimConfig sim;       ///< kind == sim
   std::string replay_path;  ///< kind == replay: raw log (resolved path)
   bool replay_realtime = true;  ///< kind == replay: pace the rows by their time stamps
+  SocketCanConfig socketcan;    ///< kind == socketcan
 };
 
 /// Encoder-equivalent output scaling: counts = direction * position_m * counts_per_m + preset_counts.

@@ -17,7 +17,7 @@ set +e
 timeout -k 5 "$LIMIT" qemu-system-x86_64 -accel tcg -m "$MEM" -smp 2 -nographic -no-reboot \
   -kernel "$CACHE/vmlinuz" -initrd "$CACHE/initramfs.gz" \
   -append "console=ttyS0 quiet panic=-1 vecmd=$SCRIPT" \
-  -virtfs local,path=/,mount_tag=hostroot,security_model=passthrough,id=hostroot \
+  -virtfs local,path=/,mount_tag=hostroot,security_model=passthrough,id=hostroot,multidevs=remap \
   > "$CACHE/console.log" 2>&1 </dev/null
 rc=$?
 set -e
