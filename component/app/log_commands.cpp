@@ -55,7 +55,9 @@ int record_command(const RecordOptions& options) {
   }
   // The first sample tells which optional columns the source fills.
   core::RawSample s;
+  // A live source (a CAN bus) may take a moment to deliver its first sample.
   auto st = source->read(s);
+  for (int i = 0; st == drivers::ReadStatus::timeout && i < 250 && !wait_for_termination(0.0); ++i) st = source->read(s);
   if (st != drivers::ReadStatus::ok) {
     std::fprintf(stderr, "the source gave no sample: %s\n", source->last_error().c_str());
     return 1;
@@ -102,6 +104,8 @@ int record_command(const RecordOptions& options) {
                             static_cast<double>(s.t_ns - t0) * 1e-9, static_cast<unsigned long long>(n));
     }
     st = source->read(s);
+    // A silent moment on a live source is not the end of the recording.
+    while (st == drivers::ReadStatus::timeout && !wait_for_termination(0.0)) st = source->read(s);
   }
   if (st == drivers::ReadStatus::error) {
     std::fprintf(stderr, "\nsource error: %s\n", source->last_error().c_str());
