@@ -1,18 +1,12 @@
 #include "replay/replay_source.hpp"
 
-#include <time.h>
-
 #include <algorithm>
+
+#include "pacing.hpp"
 
 namespace ve::replay {
 
 namespace {
-
-std::int64_t monotonic_ns() {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
-}
 
 }  // namespace
 
@@ -27,23 +21,11 @@ ReplaySource::ReplaySource(const std::string& path, bool realtime) : path_(path)
 
 bool ReplaySource::wait_until_due(std::int64_t t_ns) {
   if (rows_read_.load(std::memory_order_relaxed) == 0) {
-    clock_start_ns_ = monotonic_ns();
+    clock_start_ns_ = drivers::monotonic_ns();
     t0_ns_ = t_ns;
     return !stop_.load(std::memory_order_relaxed);
   }
-  const std::int64_t due = clock_start_ns_ + (t_ns - t0_ns_);
-  // Sleep in slices so that stop() is noticed within kSlice.
-  constexpr std::int64_t kSlice = 2000000;  // [ns]
-  for (;;) {
-    if (stop_.load(std::memory_order_relaxed)) return false;
-    const std::int64_t now = monotonic_ns();
-    if (now >= due) return true;
-    const std::int64_t until = std::min(due, now + kSlice);
-    timespec ts{};
-    ts.tv_sec = static_cast<time_t>(until / 1000000000LL);
-    ts.tv_nsec = static_cast<long>(until % 1000000000LL);
-    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr);  // EINTR: the loop re-checks
-  }
+  return drivers::sleep_until(clock_start_ns_ + (t_ns - t0_ns_), stop_);
 }
 
 drivers::ReadStatus ReplaySource::read(core::RawSample& out) {

@@ -1,10 +1,10 @@
 #include "sim/sim_source.hpp"
 
-#include <time.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+
+#include "pacing.hpp"
 
 namespace ve::sim {
 
@@ -61,12 +61,6 @@ constexpr std::uint64_t kKeyFault = 7ull << 60;
 
 double track_normal(std::uint64_t seed, std::uint64_t key, std::int64_t index) {
   return Stream(seed, key ^ (static_cast<std::uint64_t>(index) & ((1ull << 60) - 1))).normal();
-}
-
-std::int64_t monotonic_ns() {
-  timespec ts{};
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
 }
 
 bool finite_nonneg(double x) { return std::isfinite(x) && x >= 0.0; }
@@ -246,22 +240,10 @@ std::int64_t SimSource::sample_time_ns(std::uint64_t k) const {
 
 bool SimSource::wait_until_due(std::uint64_t n) {
   if (n == 0) {
-    clock_start_ns_ = monotonic_ns();
+    clock_start_ns_ = drivers::monotonic_ns();
     return !stop_.load(std::memory_order_relaxed);
   }
-  const std::int64_t due = clock_start_ns_ + sample_time_ns(n);
-  // Sleep in slices so that stop() is noticed within kSlice.
-  constexpr std::int64_t kSlice = 2000000;  // [ns]
-  for (;;) {
-    if (stop_.load(std::memory_order_relaxed)) return false;
-    const std::int64_t now = monotonic_ns();
-    if (now >= due) return true;
-    const std::int64_t until = std::min(due, now + kSlice);
-    timespec ts{};
-    ts.tv_sec = static_cast<time_t>(until / 1000000000LL);
-    ts.tv_nsec = static_cast<long>(until % 1000000000LL);
-    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr);  // EINTR: the loop re-checks
-  }
+  return drivers::sleep_until(clock_start_ns_ + sample_time_ns(n), stop_);
 }
 
 drivers::ReadStatus SimSource::read(core::RawSample& out) {

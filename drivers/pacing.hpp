@@ -1,0 +1,18 @@
+// Real-time pacing shared by the sources that replay or simulate a clock: sample
+// n is handed out no earlier than its offset after the first one, on
+// CLOCK_MONOTONIC, without drift (a late caller catches up without sleeping).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+
+namespace ve::drivers {
+
+/// CLOCK_MONOTONIC [ns].
+std::int64_t monotonic_ns();
+
+/// Sleeps until `due_ns` on CLOCK_MONOTONIC, in slices of at most 2 ms so that
+/// `stop` is noticed promptly. False when stopped.
+bool sleep_until(std::int64_t due_ns, const std::atomic<bool>& stop);
+
+}  // namespace ve::drivers
