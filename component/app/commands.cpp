@@ -18,6 +18,7 @@
 
 #include "axis.hpp"
 #include "calibration_log.hpp"
+#include "calibration_service.hpp"
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "core/status.hpp"
@@ -340,6 +341,22 @@ int run_command(const RunOptions& options) {
       }
     }
     for (const auto& loop : loops) description_writer.write(describe_axis(loop->setup, machine));
+
+    // Calibration over DDS: commands in, status out; the work runs in the
+    // service's own thread, never in an axis thread. Declared in this order so
+    // that the reader (and its callbacks) goes first, then the service (joining
+    // its worker), then the status writer.
+    CalibrationStatusWriter calibration_status(*ctx);
+    CalibrationService calibration_service(machine, calibration_status);
+    CalibrationCommandReader calibration_commands(
+        *ctx, [&calibration_service](const ve::dds::CalibrationCommand& c) { calibration_service.handle(c); });
+    if (!calibration_status.ok() || !calibration_commands.ok()) {
+      spdlog::error("cannot create the DDS calibration reader/writer (check the QoS in the profiles file)");
+      return 1;
+    }
+    spdlog::info("calibration over DDS: commands on '{}', status on '{}' (simulator axes; a new calibration takes "
+                 "effect on the next start)",
+                 kCalibrationCommandTopic, kCalibrationStatusTopic);
 
     spdlog::info("machine '{}' from {}: {} axis/axes on DDS domain {}, topics '{}', '{}', '{}', offered deadline {} ms",
                  machine.name, machine.source, loops.size(), machine.dds.domain, kStateTopic, kDiagnosticsTopic,

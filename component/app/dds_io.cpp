@@ -111,6 +111,26 @@ void description_defaults(Q& q) {
   q.history().depth = 1;
 }
 
+// Calibration commands: every request counts and none is replayed to a process
+// that starts later: reliable, keep all, volatile.
+template <class Q>
+void calibration_command_defaults(Q& q) {
+  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
+  q.history().kind = fdds::KEEP_ALL_HISTORY_QOS;
+}
+
+// Calibration status: progress and result, the last one per axis for a late
+// joiner: reliable, transient-local, keep last 1. The writer never blocks the
+// worker for long (a status is superseded a fraction of a second later).
+template <class Q>
+void calibration_status_defaults(Q& q) {
+  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  q.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
+  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+  q.history().depth = 1;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------- DdsContext
@@ -169,7 +189,12 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
       ctx->participant_->create_topic(kDescriptionTopic, description_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
   ctx->diagnostics_topic_ =
       ctx->participant_->create_topic(kDiagnosticsTopic, diagnostics_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
-  if (ctx->state_topic_ == nullptr || ctx->description_topic_ == nullptr || ctx->diagnostics_topic_ == nullptr) {
+  ctx->calibration_command_topic_ =
+      ctx->participant_->create_topic(kCalibrationCommandTopic, command_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+  ctx->calibration_status_topic_ =
+      ctx->participant_->create_topic(kCalibrationStatusTopic, cal_status_type.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+  if (ctx->state_topic_ == nullptr || ctx->description_topic_ == nullptr || ctx->diagnostics_topic_ == nullptr ||
+      ctx->calibration_command_topic_ == nullptr || ctx->calibration_status_topic_ == nullptr) {
     error = "cannot create the DDS topics";
     return nullptr;
   }
@@ -546,5 +571,169 @@ int StateReader::matched_writers() const { return listener_->matched.load(); }
 int StateReader::matched_diagnostics_writers() const { return listener_->diagnostics_matched.load(); }
 std::uint64_t StateReader::total_received() const { return listener_->total.load(); }
 std::uint64_t StateReader::diagnostics_received() const { return listener_->diagnostics_total.load(); }
+
+// ---------------------------------------------------------------- calibration
+
+class CalibrationCommandReader::Listener : public fdds::DataReaderListener {
+ public:
+  explicit Listener(Callback cb) : callback(std::move(cb)) {}
+  void on_data_available(fdds::DataReader* reader) override {
+    fdds::SampleInfo info;
+    ve::dds::CalibrationCommand c;
+    while (reader->take_next_sample(&c, &info) == ReturnCode_t::RETCODE_OK) {
+      if (!info.valid_data) continue;
+      if (callback) callback(c);
+    }
+  }
+  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& s) override {
+    matched.store(s.current_count);
+  }
+  Callback callback;
+  std::atomic<int> matched{0};
+};
+
+CalibrationCommandReader::CalibrationCommandReader(DdsContext& ctx, Callback on_command)
+    : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_command))) {
+  auto* sub = ctx_.subscriber();
+  if (sub == nullptr) return;
+  fdds::DataReaderQos q;
+  sub->get_default_datareader_qos(q);
+  from_profile_ = ctx_.reader_qos_from_profile(profile::kCalibrationCommandReader, q);
+  if (!from_profile_) calibration_command_defaults(q);
+  reader_ = sub->create_datareader(ctx_.calibration_command_topic(), q, listener_.get(),
+                                   fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+}
+
+CalibrationCommandReader::~CalibrationCommandReader() {
+  if (reader_ == nullptr) return;
+  reader_->set_listener(nullptr);
+  ctx_.subscriber()->delete_datareader(reader_);
+}
+
+int CalibrationCommandReader::matched_writers() const { return listener_->matched.load(); }
+
+class CalibrationStatusWriter::Listener : public fdds::DataWriterListener {
+ public:
+  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
+    matched.store(s.current_count);
+  }
+  std::atomic<int> matched{0};
+};
+
+CalibrationStatusWriter::CalibrationStatusWriter(DdsContext& ctx) : ctx_(ctx), listener_(std::make_unique<Listener>()) {
+  auto* pub = ctx_.publisher();
+  if (pub == nullptr) return;
+  fdds::DataWriterQos q;
+  pub->get_default_datawriter_qos(q);
+  from_profile_ = ctx_.writer_qos_from_profile(profile::kCalibrationStatusWriter, q);
+  if (!from_profile_) calibration_status_defaults(q);
+  writer_ = pub->create_datawriter(ctx_.calibration_status_topic(), q, listener_.get(),
+                                   fdds::StatusMask::publication_matched());
+}
+
+CalibrationStatusWriter::~CalibrationStatusWriter() {
+  if (writer_ == nullptr) return;
+  writer_->set_listener(nullptr);
+  ctx_.publisher()->delete_datawriter(writer_);
+}
+
+bool CalibrationStatusWriter::write(const ve::dds::CalibrationStatus& s) {
+  return writer_->write(const_cast<ve::dds::CalibrationStatus*>(&s));
+}
+
+int CalibrationStatusWriter::matched_readers() const { return listener_->matched.load(); }
+
+class CalibrationCommandWriter::Listener : public fdds::DataWriterListener {
+ public:
+  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
+    matched.store(s.current_count);
+  }
+  std::atomic<int> matched{0};
+};
+
+CalibrationCommandWriter::CalibrationCommandWriter(DdsContext& ctx)
+    : ctx_(ctx), listener_(std::make_unique<Listener>()) {
+  auto* pub = ctx_.publisher();
+  if (pub == nullptr) return;
+  fdds::DataWriterQos q;
+  pub->get_default_datawriter_qos(q);
+  if (!ctx_.writer_qos_from_profile(profile::kCalibrationCommandWriter, q)) calibration_command_defaults(q);
+  writer_ = pub->create_datawriter(ctx_.calibration_command_topic(), q, listener_.get(),
+                                   fdds::StatusMask::publication_matched());
+}
+
+CalibrationCommandWriter::~CalibrationCommandWriter() {
+  if (writer_ == nullptr) return;
+  writer_->set_listener(nullptr);
+  ctx_.publisher()->delete_datawriter(writer_);
+}
+
+bool CalibrationCommandWriter::write(const ve::dds::CalibrationCommand& c) {
+  return writer_->write(const_cast<ve::dds::CalibrationCommand*>(&c));
+}
+
+int CalibrationCommandWriter::matched_readers() const { return listener_->matched.load(); }
+
+class CalibrationStatusReader::Listener : public fdds::DataReaderListener {
+ public:
+  explicit Listener(Callback cb) : callback(std::move(cb)) {}
+  void on_data_available(fdds::DataReader* reader) override {
+    fdds::SampleInfo info;
+    ve::dds::CalibrationStatus s;
+    while (reader->take_next_sample(&s, &info) == ReturnCode_t::RETCODE_OK) {
+      if (!info.valid_data) continue;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        all.push_back(s);
+        last[s.axis_id()] = s;
+      }
+      if (callback) callback(s);
+    }
+  }
+  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& s) override {
+    matched.store(s.current_count);
+  }
+  Callback callback;
+  std::mutex mutex;
+  std::vector<ve::dds::CalibrationStatus> all;
+  std::map<std::uint32_t, ve::dds::CalibrationStatus> last;
+  std::atomic<int> matched{0};
+};
+
+CalibrationStatusReader::CalibrationStatusReader(DdsContext& ctx, Callback on_status)
+    : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_status))) {
+  auto* sub = ctx_.subscriber();
+  if (sub == nullptr) return;
+  fdds::DataReaderQos q;
+  sub->get_default_datareader_qos(q);
+  if (!ctx_.reader_qos_from_profile(profile::kCalibrationStatusReader, q)) calibration_status_defaults(q);
+  // Created without a listener, then given one and drained: transient-local
+  // samples that arrive in between are not lost.
+  reader_ = sub->create_datareader(ctx_.calibration_status_topic(), q, nullptr, fdds::StatusMask::none());
+  if (reader_ == nullptr) return;
+  reader_->set_listener(listener_.get(), fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+  listener_->on_data_available(reader_);
+}
+
+CalibrationStatusReader::~CalibrationStatusReader() {
+  if (reader_ == nullptr) return;
+  reader_->set_listener(nullptr);
+  ctx_.subscriber()->delete_datareader(reader_);
+}
+
+int CalibrationStatusReader::matched_writers() const { return listener_->matched.load(); }
+
+std::vector<ve::dds::CalibrationStatus> CalibrationStatusReader::received() {
+  std::lock_guard<std::mutex> lock(listener_->mutex);
+  return listener_->all;
+}
+
+bool CalibrationStatusReader::last(std::uint32_t axis_id, ve::dds::CalibrationStatus& out) {
+  std::lock_guard<std::mutex> lock(listener_->mutex);
+  const auto it = listener_->last.find(axis_id);
+  if (it == listener_->last.end()) return false;
+  out = it->second;
+  return true;
+}
 
 }  // namespace ve::app

@@ -77,6 +77,8 @@ class DdsContext {
   eprosima::fastdds::dds::Topic* state_topic() const { return state_topic_; }
   eprosima::fastdds::dds::Topic* description_topic() const { return description_topic_; }
   eprosima::fastdds::dds::Topic* diagnostics_topic() const { return diagnostics_topic_; }
+  eprosima::fastdds::dds::Topic* calibration_command_topic() const { return calibration_command_topic_; }
+  eprosima::fastdds::dds::Topic* calibration_status_topic() const { return calibration_status_topic_; }
   eprosima::fastdds::dds::Publisher* publisher();
   eprosima::fastdds::dds::Subscriber* subscriber();
 
@@ -92,6 +94,8 @@ class DdsContext {
   eprosima::fastdds::dds::Topic* state_topic_ = nullptr;
   eprosima::fastdds::dds::Topic* description_topic_ = nullptr;
   eprosima::fastdds::dds::Topic* diagnostics_topic_ = nullptr;
+  eprosima::fastdds::dds::Topic* calibration_command_topic_ = nullptr;
+  eprosima::fastdds::dds::Topic* calibration_status_topic_ = nullptr;
   bool participant_from_profile_ = false;
   bool profiles_loaded_ = false;
   eprosima::fastdds::dds::Publisher* publisher_ = nullptr;
@@ -227,6 +231,83 @@ class StateReader {
   eprosima::fastdds::dds::DataReader* state_reader_ = nullptr;
   eprosima::fastdds::dds::DataReader* description_reader_ = nullptr;
   eprosima::fastdds::dds::DataReader* diagnostics_reader_ = nullptr;
+};
+
+// ------------------------------------------------------------- calibration
+
+/// Reader of ve/calibration_command (run side: reliable, keep all, volatile).
+/// `on_command` is called on the Fast DDS listener thread; keep it short.
+class CalibrationCommandReader {
+ public:
+  using Callback = std::function<void(const ve::dds::CalibrationCommand&)>;
+  CalibrationCommandReader(DdsContext& ctx, Callback on_command);
+  ~CalibrationCommandReader();
+  bool ok() const { return reader_ != nullptr; }
+  bool from_profile() const { return from_profile_; }
+  int matched_writers() const;
+
+ private:
+  class Listener;
+  DdsContext& ctx_;
+  std::unique_ptr<Listener> listener_;
+  eprosima::fastdds::dds::DataReader* reader_ = nullptr;
+  bool from_profile_ = false;
+};
+
+/// Writer of ve/calibration_status (run side: reliable, transient-local, last per axis).
+class CalibrationStatusWriter {
+ public:
+  explicit CalibrationStatusWriter(DdsContext& ctx);
+  ~CalibrationStatusWriter();
+  bool ok() const { return writer_ != nullptr; }
+  bool from_profile() const { return from_profile_; }
+  /// Thread-safe.
+  bool write(const ve::dds::CalibrationStatus& s);
+  int matched_readers() const;
+
+ private:
+  class Listener;
+  DdsContext& ctx_;
+  std::unique_ptr<Listener> listener_;
+  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
+  bool from_profile_ = false;
+};
+
+/// Writer of ve/calibration_command (requester side: a tool, an HMI, the tests).
+class CalibrationCommandWriter {
+ public:
+  explicit CalibrationCommandWriter(DdsContext& ctx);
+  ~CalibrationCommandWriter();
+  bool ok() const { return writer_ != nullptr; }
+  bool write(const ve::dds::CalibrationCommand& c);
+  int matched_readers() const;
+
+ private:
+  class Listener;
+  DdsContext& ctx_;
+  std::unique_ptr<Listener> listener_;
+  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
+};
+
+/// Reader of ve/calibration_status (requester side). Keeps every status received
+/// (in order) and the last one per axis; a late joiner gets the last status of
+/// each axis (transient local). `on_status` runs on the Fast DDS listener thread.
+class CalibrationStatusReader {
+ public:
+  using Callback = std::function<void(const ve::dds::CalibrationStatus&)>;
+  explicit CalibrationStatusReader(DdsContext& ctx, Callback on_status = {});
+  ~CalibrationStatusReader();
+  bool ok() const { return reader_ != nullptr; }
+  int matched_writers() const;
+  std::vector<ve::dds::CalibrationStatus> received();
+  /// False when no status of this axis has arrived.
+  bool last(std::uint32_t axis_id, ve::dds::CalibrationStatus& out);
+
+ private:
+  class Listener;
+  DdsContext& ctx_;
+  std::unique_ptr<Listener> listener_;
+  eprosima::fastdds::dds::DataReader* reader_ = nullptr;
 };
 
 }  // namespace ve::app
