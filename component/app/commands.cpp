@@ -299,6 +299,7 @@ int run_command(const RunOptions& options) {
   DdsOptions dds_options;
   dds_options.domain = machine.dds.domain;
   dds_options.profiles_file = machine.dds.profiles_file;
+  dds_options.statistics = machine.dds.statistics;
   dds_options.participant_name = "virtual-encoder/" + machine.name;
   std::string error;
   auto ctx = DdsContext::create(dds_options, error);

@@ -163,6 +163,13 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
     factory->get_default_participant_qos(pq);
   }
   pq.name(options.participant_name);
+  if (!options.statistics.empty()) {
+    // The statistics module is compiled into Debian's Fast DDS; this property
+    // turns on the named topics for this participant.
+    std::string topics;
+    for (const auto& t : options.statistics) topics += (topics.empty() ? "" : ";") + t;
+    pq.properties().properties().emplace_back("fastdds.statistics", topics);
+  }
   ctx->participant_ = factory->create_participant(static_cast<fdds::DomainId_t>(options.domain), pq);
   if (ctx->participant_ == nullptr) {
     error = "cannot create a DDS participant on domain " + std::to_string(options.domain);

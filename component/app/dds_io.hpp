@@ -55,6 +55,8 @@ struct DdsOptions {
   /// Fast DDS XML profiles, loaded before the participant. Profiles are also
   /// found in FASTRTPS_DEFAULT_PROFILES_FILE (Fast DDS loads it by itself).
   std::string profiles_file;
+  /// Fast DDS statistics topics to enable (names as in fastdds/statistics/topic_names.hpp).
+  std::vector<std::string> statistics;
   std::string participant_name = "virtual-encoder";
   /// Announce XTypes TypeInformation (for TypeLookup-based tools). Off by default:
   /// Cyclone DDS 0.10 rejects Fast DDS 2.9's TypeInformation and then ignores our

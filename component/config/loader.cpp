@@ -874,6 +874,34 @@ class MachineLoader {
       });
       const Value profiles = dds.value("profiles_file");
       if (profiles.present()) referenced_file(profiles, cfg.dds.profiles_file);
+      const Value stats = dds.value("statistics");
+      if (stats.present()) {
+        static const char* kTopics[] = {
+            "HISTORY_LATENCY_TOPIC",   "NETWORK_LATENCY_TOPIC", "PUBLICATION_THROUGHPUT_TOPIC",
+            "SUBSCRIPTION_THROUGHPUT_TOPIC", "RTPS_SENT_TOPIC", "RTPS_LOST_TOPIC",
+            "RESENT_DATAS_TOPIC",      "HEARTBEAT_COUNT_TOPIC", "ACKNACK_COUNT_TOPIC",
+            "NACKFRAG_COUNT_TOPIC",    "GAP_COUNT_TOPIC",       "DATA_COUNT_TOPIC",
+            "PDP_PACKETS_TOPIC",       "EDP_PACKETS_TOPIC",     "DISCOVERY_TOPIC",
+            "SAMPLE_DATAS_TOPIC",      "PHYSICAL_DATA_TOPIC"};
+        if (!stats.is_sequence()) {
+          stats.error("expected a list of Fast DDS statistics topic names, e.g. [HISTORY_LATENCY_TOPIC]");
+        } else {
+          for (std::size_t i = 0; i < stats.size(); ++i) {
+            const Value item = stats.at(i);
+            std::string name;
+            if (!item.as(name)) continue;
+            bool known = false;
+            for (const char* t : kTopics) known = known || name == t;
+            if (known) {
+              cfg.dds.statistics.push_back(name);
+            } else {
+              std::string all;
+              for (const char* t : kTopics) all += (all.empty() ? "" : " | ") + std::string(t);
+              item.error("'" + name + "' is not a Fast DDS statistics topic: " + all);
+            }
+          }
+        }
+      }
     }
     const Value axes = root.required("axes");
     if (!axes.present()) return;

@@ -63,6 +63,9 @@ struct DdsConfig {
   int domain = 0;              ///< 0..232
   double deadline_ms = 5.0;    ///< offered deadline per axis instance; whole milliseconds
   std::string profiles_file;   ///< optional Fast DDS XML profiles (resolved path)
+  /// Fast DDS statistics topics to publish (what Fast DDS Monitor and other tools
+  /// read), by name, e.g. HISTORY_LATENCY_TOPIC. Empty: none.
+  std::vector<std::string> statistics;
 };
 
 struct MachineConfig {

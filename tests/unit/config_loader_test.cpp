@@ -347,6 +347,22 @@ TEST(ConfigLoader, ReplayDriverNeedsLogAndRejectsSimKeys) {
   expect_error(r, path, 7, 7, "axes[0].driver.noise_seed", "only used with type: sim");
 }
 
+TEST(ConfigLoader, StatisticsTopicsAreCheckedByName) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "dds:\n"                                                       // 1
+                              "  statistics: [HISTORY_LATENCY_TOPIC, LATENCY, DATA_COUNT_TOPIC]\n"  // 2
+                              "axes: [{name: x, motor: m.yaml}]\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  EXPECT_EQ(r.errors[0].line, 2);
+  EXPECT_EQ(r.errors[0].column, 39);
+  EXPECT_NE(r.errors[0].message.find("'LATENCY' is not a Fast DDS statistics topic"), std::string::npos)
+      << r.errors[0].message;
+  EXPECT_EQ(r.config.dds.statistics, (std::vector<std::string>{"HISTORY_LATENCY_TOPIC", "DATA_COUNT_TOPIC"}));
+}
+
 TEST(ConfigLoader, DuplicateKeyIsAnError) {
   TempDir dir;
   dir.write("m.yaml", kMotor);
