@@ -997,7 +997,7 @@ class MachineLoader {
                 {"socketcan", DriverConfig::Kind::socketcan}});
     // ---- socketcan driver (issue 6) ----
     if (drv.kind == DriverConfig::Kind::socketcan) {
-      for (const char* k : {"noise_seed", "profile", "imperfections", "realtime"}) d.reject(k, "only used with type: sim");
+      for (const char* k : {"noise_seed", "profile", "imperfections", "faults", "realtime"}) d.reject(k, "only used with type: sim");
       d.reject("log", "only used with type: replay");
       read_socketcan(d, drv.socketcan);
       return;
@@ -1006,7 +1006,7 @@ class MachineLoader {
     // ---- end socketcan ----
     if (drv.kind == DriverConfig::Kind::replay) {
       const std::string why = "only used with type: sim";
-      for (const char* k : {"noise_seed", "profile", "imperfections"}) d.reject(k, why);
+      for (const char* k : {"noise_seed", "profile", "imperfections", "faults"}) d.reject(k, why);
       d.get("realtime", drv.replay_realtime);
       const Value log = d.required("log");
       if (log.present()) referenced_file(log, drv.replay_path);
@@ -1018,6 +1018,7 @@ class MachineLoader {
     d.get("realtime", s.realtime);
     d.get("noise_seed", s.noise_seed);
     read_profile(d.map("profile"), s.profile, travel);
+    read_faults(d.value("faults"), s);
     {
       Map im = d.map("imperfections");
       sim::ImperfectionConfig& c = s.imperfections;
@@ -1074,6 +1075,37 @@ class MachineLoader {
   }
   const MotorEntry* current_motor_ = nullptr;  // the axis being read, for cross-checks
   // ---- end socketcan ----
+
+  /// Injected sensor faults: a list of {kind, sensor, start_s, end_s, magnitude}.
+  static void read_faults(const Value& list, sim::SimConfig& s) {
+    if (!list.present() || list.is_null()) return;
+    if (!list.is_sequence()) {
+      list.error("expected a list of faults, e.g. [{kind: hall_stuck_high, sensor: 1, start_s: 2.0}]");
+      return;
+    }
+    if (list.size() > static_cast<std::size_t>(sim::kMaxFaults)) {
+      list.error("at most " + std::to_string(sim::kMaxFaults) + " faults");
+      return;
+    }
+    using K = sim::FaultConfig::Kind;
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      Map f = list.at(i).as_map();
+      sim::FaultConfig fc;
+      f.get_enum("kind", fc.kind,
+                 {{"hall_stuck_high", K::hall_stuck_high}, {"hall_stuck_low", K::hall_stuck_low},
+                  {"hall_stuck_mid", K::hall_stuck_mid}, {"hall_noisy", K::hall_noisy},
+                  {"hall_intermittent", K::hall_intermittent}, {"hall_spikes", K::hall_spikes},
+                  {"accel_dead", K::accel_dead}, {"accel_saturated", K::accel_saturated},
+                  {"accel_bias", K::accel_bias}, {"accel_missing", K::accel_missing}});
+      if (!f.has("kind")) f.required("kind");
+      f.get("sensor", fc.sensor, schema::in_range(0, core::kMaxHalls - 1));
+      f.get("start_s", fc.start_s, schema::at_least(0.0));
+      f.get("end_s", fc.end_s, schema::greater_than(0.0));
+      f.get("magnitude", fc.magnitude);
+      if (fc.end_s <= fc.start_s) f.value("end_s").error("end_s must be after start_s");
+      s.faults[s.fault_count++] = fc;
+    }
+  }
 
   static void read_profile(Map p, sim::MotionProfileConfig& c, double travel) {
     using K = sim::MotionProfileConfig::Kind;

@@ -363,6 +363,32 @@ TEST(ConfigLoader, StatisticsTopicsAreCheckedByName) {
   EXPECT_EQ(r.config.dds.statistics, (std::vector<std::string>{"HISTORY_LATENCY_TOPIC", "DATA_COUNT_TOPIC"}));
 }
 
+TEST(ConfigLoader, SimulatorFaultsAreLoadedAndChecked) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                                                              // 1
+                              "  - name: x\n"                                                        // 2
+                              "    motor: m.yaml\n"                                                  // 3
+                              "    driver:\n"                                                        // 4
+                              "      type: sim\n"                                                    // 5
+                              "      faults:\n"                                                      // 6
+                              "        - {kind: hall_stuck_high, sensor: 1, start_s: 2.0}\n"         // 7
+                              "        - {kind: accel_noisy, start_s: 1.0}\n"                        // 8
+                              "        - {kind: hall_noisy, sensor: 2, start_s: 3, end_s: 1}\n");    // 9
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 2u) << to_string(r.errors);
+  EXPECT_EQ(r.errors[0].line, 8);
+  EXPECT_NE(r.errors[0].message.find("'accel_noisy' is not one of"), std::string::npos) << r.errors[0].message;
+  EXPECT_EQ(r.errors[1].line, 9);
+  EXPECT_NE(r.errors[1].message.find("end_s must be after start_s"), std::string::npos) << r.errors[1].message;
+  const auto& sim = r.config.axes.at(0).driver.sim;
+  ASSERT_GE(sim.fault_count, 1);
+  EXPECT_EQ(sim.faults[0].kind, sim::FaultConfig::Kind::hall_stuck_high);
+  EXPECT_EQ(sim.faults[0].sensor, 1);
+  EXPECT_DOUBLE_EQ(sim.faults[0].start_s, 2.0);
+}
+
 TEST(ConfigLoader, DuplicateKeyIsAnError) {
   TempDir dir;
   dir.write("m.yaml", kMotor);
