@@ -25,6 +25,7 @@
 #include "core/identification.hpp"
 #include "dds_io.hpp"
 #include "reports.hpp"
+#include "service.hpp"
 #include "signals.hpp"
 #include "sim/calibration_run.hpp"
 #include "sim/sim_source.hpp"
@@ -388,17 +389,52 @@ int run_command(const RunOptions& options) {
       loop->thread = std::thread(axis_loop, std::ref(*loop), std::ref(state_writer), std::ref(diagnostics_writer),
                                  std::cref(stopping));
 
+    // systemd: ready only once every axis publishes; the watchdog is petted only
+    // while every sample loop keeps making progress.
+    ServiceNotifier service;
+    bool announced = false;
+    std::vector<std::uint64_t> pet_counts(loops.size(), 0);
+    auto all_progressed = [&]() {
+      bool ok = true;
+      for (std::size_t i = 0; i < loops.size(); ++i) {
+        const auto n = loops[i]->samples.load();
+        ok = ok && n > pet_counts[i] && !loops[i]->finished.load();
+        pet_counts[i] = n;
+      }
+      return ok;
+    };
+
     const auto start = std::chrono::steady_clock::now();
     std::vector<std::uint64_t> last_counts(loops.size(), 0);
     auto last_report = start;
+    auto next_status = start + std::chrono::duration<double>(options.status_period_s);
     for (;;) {
       const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-      double wait = options.status_period_s;
+      double wait = std::chrono::duration<double>(next_status - std::chrono::steady_clock::now()).count();
+      if (!announced) wait = std::min(wait, 0.01);
+      if (service.watchdog_period_s() > 0) wait = std::min(wait, service.watchdog_period_s());
       if (options.duration_s > 0) wait = std::min(wait, std::max(0.0, options.duration_s - elapsed));
       if (wait_for_termination(std::max(wait, 0.001))) {
         spdlog::info("termination signal: stopping");
         break;
       }
+      if (!announced) {
+        bool publishing = true;
+        for (const auto& l : loops) publishing = publishing && l->samples.load() > 0;
+        if (publishing) {
+          announced = true;
+          all_progressed();
+          service.ready("publishing " + std::to_string(loops.size()) + " axis/axes on DDS domain " +
+                        std::to_string(machine.dds.domain));
+        }
+      } else if (service.watchdog_period_s() > 0 && all_progressed()) {
+        service.watchdog();
+      }
+      if (std::chrono::steady_clock::now() < next_status &&
+          !(options.duration_s > 0 &&
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >= options.duration_s))
+        continue;
+      next_status += std::chrono::duration<double>(options.status_period_s);
       const auto now = std::chrono::steady_clock::now();
       const double dt = std::chrono::duration<double>(now - last_report).count();
       last_report = now;
@@ -423,6 +459,7 @@ int run_command(const RunOptions& options) {
           std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >= options.duration_s)
         break;
     }
+    service.stopping();
     stopping.store(true);
     for (auto& loop : loops) loop->setup.source->stop();
     for (auto& loop : loops) {
