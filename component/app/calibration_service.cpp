@@ -18,8 +18,6 @@
 #include "dds_io.hpp"
 #include "reports.hpp"
 #include "sim/calibration_run.hpp"
-#include "sim/motion_profile.hpp"
-#include "sim/sim_source.hpp"
 
 namespace ve::app {
 
@@ -38,81 +36,6 @@ const char* driver_name(config::DriverConfig::Kind k) {
     case config::DriverConfig::Kind::socketcan: return "socketcan";
   }
   return "?";
-}
-
-enum class Recorded { ok, failed, aborted };
-
-/// One segment of the calibration motion; checks `abort` every 1000 samples.
-Recorded record_segment(const core::MotorConfig& motor, const sim::SimConfig& cfg, double duration_s,
-                        core::ReferenceSegment& seg, std::string& error, const std::atomic<bool>& abort,
-                        const std::function<void(double)>& progress, double done, double share) {
-  sim::SimSource source(motor, cfg);
-  if (!source.ok()) {
-    error = source.last_error();
-    return Recorded::failed;
-  }
-  const auto n = static_cast<std::size_t>(duration_s * motor.sample_rate_hz);
-  seg.samples.reserve(n);
-  seg.reference_m.reserve(n);
-  core::RawSample s;
-  while (seg.samples.size() < n) {
-    if (seg.samples.size() % 1000 == 0) {
-      if (abort.load(std::memory_order_relaxed)) return Recorded::aborted;
-      progress(done + share * static_cast<double>(seg.samples.size()) / static_cast<double>(n));
-    }
-    if (source.read(s) != drivers::ReadStatus::ok) {
-      error = "the simulator stopped after " + std::to_string(seg.samples.size()) + " samples: " + source.last_error();
-      return Recorded::failed;
-    }
-    double x = 0.0;
-    source.reference_position(x);
-    seg.samples.push_back(s);
-    seg.reference_m.push_back(x);
-  }
-  return Recorded::ok;
-}
-
-/// The motion of sim::record_calibration_run (same segments, same seeds), recorded
-/// here so that an abort can stop it: the slow sweep over the whole travel and
-/// back, then fast multisine motion.
-Recorded record_run(const core::MotorConfig& motor, const sim::SimConfig& base, const sim::CalibrationRunConfig& run,
-                    std::vector<core::ReferenceSegment>& segments, std::string& error,
-                    const std::atomic<bool>& abort, const std::function<void(double)>& progress) {
-  segments.assign(2, core::ReferenceSegment{});
-  sim::SimConfig sweep = base;
-  sweep.realtime = false;
-  sweep.duration_s = 0.0;
-  sweep.profile = sim::MotionProfileConfig{};
-  sweep.profile.kind = sim::MotionProfileConfig::Kind::shuttle;
-  sweep.profile.start_m = 0.0;
-  sweep.profile.min_m = 0.0;
-  sweep.profile.max_m = motor.travel_m;
-  sweep.profile.max_velocity_mps = run.sweep_speed_mps;
-  sweep.profile.max_acceleration_mps2 = run.sweep_acceleration_mps2;
-  const double sweep_s = 2.0 * (motor.travel_m / run.sweep_speed_mps + run.sweep_speed_mps / run.sweep_acceleration_mps2);
-
-  sim::SimConfig dynamic = base;
-  dynamic.realtime = false;
-  dynamic.duration_s = 0.0;
-  dynamic.noise_seed = base.noise_seed + 1;
-  dynamic.profile = sim::MotionProfileConfig{};
-  dynamic.profile.kind = sim::MotionProfileConfig::Kind::multisine;
-  dynamic.profile.start_m = 0.5 * motor.travel_m;
-  dynamic.profile.min_m = 0.05 * motor.travel_m;
-  dynamic.profile.max_m = 0.95 * motor.travel_m;
-  dynamic.profile.max_velocity_mps = run.dynamic_max_velocity_mps;
-  dynamic.profile.max_acceleration_mps2 = run.dynamic_max_acceleration_mps2;
-  for (int i = 0; i < 20 && !sim::MotionProfile::create(dynamic.profile, motor.travel_m); ++i)
-    dynamic.profile.max_velocity_mps *= 0.8;
-
-  const double total = sweep_s + run.dynamic_duration_s;
-  auto r = record_segment(motor, sweep, sweep_s, segments[0], error, abort, progress, 0.0, sweep_s / total);
-  if (r != Recorded::ok) return r;
-  r = record_segment(motor, dynamic, run.dynamic_duration_s, segments[1], error, abort, progress, sweep_s / total,
-                     run.dynamic_duration_s / total);
-  if (r != Recorded::ok) return r;
-  progress(1.0);
-  return Recorded::ok;
 }
 
 // Progress of the whole job: recording takes most of the time.
@@ -262,15 +185,14 @@ void CalibrationService::work(Job job) {
   };
   std::vector<core::ReferenceSegment> segments;
   std::string error;
-  switch (record_run(axis.motor, axis.driver.sim, run, segments, error, abort_, progress)) {
-    case Recorded::ok: break;
-    case Recorded::aborted:
+  if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error, progress, &abort_)) {
+    if (error == sim::kCalibrationRunCancelled) {
       finish(ve::dds::CALIBRATION_STATE_ABORTED, kRecordingShare * recorded,
              "aborted: during recording; nothing written");
-      return;
-    case Recorded::failed:
+    } else {
       finish(ve::dds::CALIBRATION_STATE_FAILED, kRecordingShare * recorded, "failed: recording: " + error);
-      return;
+    }
+    return;
   }
 
   publish(id, ve::dds::CALIBRATION_STATE_RUNNING, req, kIdentifyingAt, "identifying");
@@ -288,15 +210,7 @@ void CalibrationService::work(Job job) {
     finish(ve::dds::CALIBRATION_STATE_FAILED, kIdentifyingAt, "failed: identification: " + error);
     return;
   }
-  {
-    const auto now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
-    char buf[32];
-    std::tm tm{};
-    gmtime_r(&now, &tm);
-    std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
-    cal.info.created_utc = buf;
-  }
-  cal.info.id = core::calibration_checksum(cal);
+  config::stamp_calibration(cal);
   char figures[256];
   std::snprintf(figures, sizeof figures, "hall delay %.1f us, table residual %.2f mV, position residual %.2f um",
                 report.hall_delay_s * 1e6, report.table_residual_mv, report.position_residual_um);

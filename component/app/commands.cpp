@@ -584,15 +584,7 @@ int calibrate_command(const CalibrateOptions& options) {
     std::fprintf(stderr, "calibration failed: %s\n", error.c_str());
     return 1;
   }
-  {
-    const auto now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
-    char buf[32];
-    std::tm tm{};
-    gmtime_r(&now, &tm);
-    std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
-    cal.info.created_utc = buf;
-  }
-  cal.info.id = core::calibration_checksum(cal);
+  config::stamp_calibration(cal);
 
   const std::string summary = format_identification_report(axis, cal, report);
   if (!report.good && !options.force) {

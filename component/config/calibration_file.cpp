@@ -222,6 +222,11 @@ bool write_all(int fd, const std::string& text) {
 
 }  // namespace
 
+void stamp_calibration(core::Calibration& cal) {
+  cal.info.created_utc = now_utc();
+  cal.info.id = core::calibration_checksum(cal);
+}
+
 CalibrationLoad load_calibration_file(const std::string& path, const core::MotorConfig& expected) {
   CalibrationLoad r;
   std::string text, why;

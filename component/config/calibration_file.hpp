@@ -27,6 +27,9 @@ struct CalibrationLoad {
 /// complete and its checksum must equal the stored `id`.
 CalibrationLoad load_calibration_file(const std::string& path, const core::MotorConfig& expected);
 
+/// Dates a new calibration (created_utc = now, UTC) and names it (id = its checksum).
+void stamp_calibration(core::Calibration& cal);
+
 /// The file's text. `id` is core::calibration_checksum(cal); an empty
 /// cal.info.created_utc is written as the current time.
 std::string format_calibration(const core::Calibration& cal);

@@ -8,7 +8,8 @@ namespace ve::sim {
 namespace {
 
 bool record(const core::MotorConfig& motor, const SimConfig& cfg, double duration_s, core::ReferenceSegment& seg,
-            std::string& error, const std::function<void(double)>& progress, double done, double share) {
+            std::string& error, const std::function<void(double)>& progress, const std::atomic<bool>* cancel,
+            double done, double share) {
   SimSource source(motor, cfg);
   if (!source.ok()) {
     error = source.last_error();
@@ -18,12 +19,22 @@ bool record(const core::MotorConfig& motor, const SimConfig& cfg, double duratio
   seg.samples.reserve(n);
   seg.reference_m.reserve(n);
   core::RawSample s;
-  while (seg.samples.size() < n && source.read(s) == drivers::ReadStatus::ok) {
+  while (seg.samples.size() < n) {
+    if (seg.samples.size() % 1000 == 0) {
+      if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) {
+        error = kCalibrationRunCancelled;
+        return false;
+      }
+      if (progress) progress(done + share * static_cast<double>(seg.samples.size()) / static_cast<double>(n));
+    }
+    if (source.read(s) != drivers::ReadStatus::ok) {
+      error = "the simulator stopped after " + std::to_string(seg.samples.size()) + " samples: " + source.last_error();
+      return false;
+    }
     double x = 0.0;
     source.reference_position(x);
     seg.samples.push_back(s);
     seg.reference_m.push_back(x);
-    if (progress && seg.samples.size() % 20000 == 0) progress(done + share * static_cast<double>(seg.samples.size()) / n);
   }
   return true;
 }
@@ -32,7 +43,7 @@ bool record(const core::MotorConfig& motor, const SimConfig& cfg, double duratio
 
 bool record_calibration_run(const core::MotorConfig& motor, const SimConfig& base, const CalibrationRunConfig& run,
                             std::vector<core::ReferenceSegment>& segments, std::string& error,
-                            const std::function<void(double)>& progress) {
+                            const std::function<void(double)>& progress, const std::atomic<bool>* cancel) {
   segments.assign(2, core::ReferenceSegment{});
   SimConfig sweep = base;
   sweep.realtime = false;
@@ -63,8 +74,8 @@ bool record_calibration_run(const core::MotorConfig& motor, const SimConfig& bas
     dynamic.profile.max_velocity_mps *= 0.8;
 
   const double total = sweep_s + run.dynamic_duration_s;
-  if (!record(motor, sweep, sweep_s, segments[0], error, progress, 0.0, sweep_s / total)) return false;
-  if (!record(motor, dynamic, run.dynamic_duration_s, segments[1], error, progress, sweep_s / total,
+  if (!record(motor, sweep, sweep_s, segments[0], error, progress, cancel, 0.0, sweep_s / total)) return false;
+  if (!record(motor, dynamic, run.dynamic_duration_s, segments[1], error, progress, cancel, sweep_s / total,
               run.dynamic_duration_s / total))
     return false;
   if (progress) progress(1.0);

@@ -5,6 +5,7 @@
 // seconds of fast multisine motion (coil field, accelerometer scale, bias, delay).
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <string>
 #include <vector>
@@ -25,9 +26,13 @@ struct CalibrationRunConfig {
 
 /// Simulates the calibration motion on the motor and sensors of `base` (its
 /// imperfections and track; the profile is replaced) and returns the recording.
-/// `progress` (optional) receives 0..1.
+/// `progress` (optional) receives 0..1. `cancel` (optional) is checked every
+/// 1000 samples: when it is set the run stops, returns false and sets `error`
+/// to kCalibrationRunCancelled.
+inline constexpr const char* kCalibrationRunCancelled = "cancelled";
 bool record_calibration_run(const core::MotorConfig& motor, const SimConfig& base, const CalibrationRunConfig& run,
                             std::vector<core::ReferenceSegment>& segments, std::string& error,
-                            const std::function<void(double)>& progress = {});
+                            const std::function<void(double)>& progress = {},
+                            const std::atomic<bool>* cancel = nullptr);
 
 }  // namespace ve::sim
