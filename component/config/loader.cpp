@@ -794,6 +794,12 @@ void read_motor(Map m, core::MotorConfig& motor) {
     f.get("vibration_random_walk_mps2_per_sqrt_s", motor.filter.vibration_random_walk_mps2_per_sqrt_s,
           non_negative());
     f.get("use_frame_accelerometer", motor.filter.use_frame_accelerometer);
+    f.get("steady_jerk_std_mps3", motor.filter.steady_jerk_std_mps3, non_negative());
+    f.get("steady_jerk_limit_mps3", motor.filter.steady_jerk_limit_mps3, positive());
+    f.get("steady_hold_s", motor.filter.steady_hold_s, positive());
+    f.get("steady_exit_cusum", motor.filter.steady_exit_cusum, positive());
+    f.get("accel_bias_step_cusum", motor.filter.accel_bias_step_cusum, non_negative());
+    f.get("accel_bias_step_std_mps2", motor.filter.accel_bias_step_std_mps2, positive());
   }
 }
 

@@ -50,6 +50,14 @@ FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const Sensor
   q_hall_only_(kAcc, kAcc) = dh * dh;
   q_hall_only_(kJerk, kJerk) = 0.0;
 
+  // Calm model: the jerk state rests (as without the accelerometer) and a small
+  // white jerk drives the acceleration.
+  q_steady_ = q_;
+  const double ds = tuning.steady_jerk_std_mps3 * t;
+  q_steady_(kAcc, kAcc) = ds * ds;
+  q_steady_(kJerk, kJerk) = 0.0;
+  hold_samples_ = std::max(1, static_cast<int>(std::lround(tuning.steady_hold_s / t)));
+
   const double d = model.hall_delay_s;
   h_hall_(kPos) = 1.0;
   h_hall_(kVel) = -d;
@@ -60,6 +68,9 @@ FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const Sensor
 void FusionFilter::reset(double position_m, double position_var_m2, double accel_reading_mps2, bool accel_valid) {
   x_.setZero();
   p_.setZero();
+  clear_detectors();
+  steady_ = false;
+  q_ = accel_available_ ? q_accel_ : q_hall_only_;
   const double a0 = accel_valid ? (accel_reading_mps2 - model_.accel_bias_mps2) / model_.accel_scale : 0.0;
   x_(kPos) = position_m;
   x_(kAcc) = a0;
@@ -112,6 +123,8 @@ void FusionFilter::predict() {
 void FusionFilter::set_accelerometer_available(bool available) {
   if (available == accel_available_) return;
   accel_available_ = available;
+  steady_ = false;
+  clear_detectors();
   q_ = available ? q_accel_ : q_hall_only_;
   if (!available) {
     // Freeze the jerk at zero: without the accelerometer nothing observes it well.
@@ -127,6 +140,96 @@ void FusionFilter::inflate(double position_var_m2, double velocity_var, double a
   p_(kPos, kPos) += position_var_m2;
   p_(kVel, kVel) += velocity_var;
   p_(kAcc, kAcc) += acceleration_var;
+  // The prediction was wrong: whatever the acceleration did, it did not hold still.
+  if (steady_) leave_steady(nullptr, 0.0, 0.0);
+}
+
+void FusionFilter::clear_detectors() {
+  win_.fill(0.0);
+  win_head_ = 0;
+  win_filled_ = 0;
+  win_old_ = win_new_ = 0.0;
+  calm_count_ = 0;
+  acc_up_ = acc_down_ = Cusum{};
+  hall_up_ = hall_down_ = Cusum{};
+}
+
+bool FusionFilter::cusum_step(Cusum& c, double z, double nu, double drift, double threshold) {
+  const double g = c.g + z - drift;
+  if (g <= 0.0) {
+    c = Cusum{};
+    return false;
+  }
+  c.g = g;
+  c.s0 += nu;
+  c.s1 += c.n * nu;
+  c.n += 1.0;
+  return g > threshold;
+}
+
+void FusionFilter::enter_steady() {
+  steady_ = true;
+  q_ = q_steady_;
+  x_(kJerk) = 0.0;
+  p_.row(kJerk).setZero();
+  p_.col(kJerk).setZero();
+  acc_up_ = acc_down_ = Cusum{};
+}
+
+void FusionFilter::leave_steady(const Cusum* c, double last_nu, double r) {
+  steady_ = false;
+  calm_count_ = 0;
+  q_ = q_accel_;
+  if (c != nullptr && c->n > 0.0) {
+    // The calm model barely followed the accelerometer since the change began, so
+    // its innovations are what it missed: add them back as the agile model would
+    // have integrated them, with their noise in the covariance.
+    const double inv = 1.0 / x_(kScale);
+    const double n = c->n, t = ts_;
+    x_(kAcc) += last_nu * inv;
+    x_(kVel) += t * c->s0 * inv;
+    x_(kPos) += t * t * (n * c->s0 - c->s1) * inv;
+    p_(kAcc, kAcc) += r * inv * inv;
+    p_(kVel, kVel) += n * r * t * t * inv * inv;
+    p_(kPos, kPos) += n * n * n / 3.0 * r * t * t * t * t * inv * inv;
+  }
+  if (tuning_.snap_std_mps4 > 0.0) p_(kJerk, kJerk) = 100.0 * 100.0;
+  acc_up_ = acc_down_ = Cusum{};
+}
+
+void FusionFilter::steady_test(double reading) {
+  // Two consecutive windows of kWin readings; the difference of their means over
+  // their spacing estimates the jerk. Sums kept incrementally, recomputed once per
+  // turn of the ring so rounding cannot accumulate.
+  const int mid_i = (win_head_ + kWin) % (2 * kWin);
+  const double oldest = win_[static_cast<std::size_t>(win_head_)];
+  const double mid = win_[static_cast<std::size_t>(mid_i)];
+  win_old_ += mid - oldest;
+  win_new_ += reading - mid;
+  win_[static_cast<std::size_t>(win_head_)] = reading;
+  win_head_ = (win_head_ + 1) % (2 * kWin);
+  if (win_head_ == 0) {
+    double a = 0.0, b = 0.0;
+    for (int i = 0; i < kWin; ++i) a += win_[static_cast<std::size_t>(i)];
+    for (int i = kWin; i < 2 * kWin; ++i) b += win_[static_cast<std::size_t>(i)];
+    win_old_ = a;
+    win_new_ = b;
+  }
+  if (win_filled_ < 2 * kWin) {
+    ++win_filled_;
+    return;
+  }
+  if (!(tuning_.steady_jerk_std_mps3 > 0.0)) return;
+  const double jerk = std::abs(win_new_ - win_old_) / (static_cast<double>(kWin) * kWin * ts_);
+  const double limit = tuning_.steady_jerk_limit_mps3;
+  if (steady_) {
+    // A slow change of acceleration that the innovations do not reveal yet.
+    if (jerk > 2.0 * limit) leave_steady(nullptr, 0.0, 0.0);
+    return;
+  }
+  // The windows' estimate lags by a window; the agile model's jerk state does not.
+  calm_count_ = jerk < limit ? calm_count_ + 1 : 0;
+  if (calm_count_ >= hold_samples_) enter_steady();
 }
 
 double FusionFilter::scalar_update(const Row& h, double innovation, double r, double gate_sigma, bool& applied) {
@@ -143,7 +246,22 @@ double FusionFilter::scalar_update(const Row& h, double innovation, double r, do
 }
 
 double FusionFilter::update_hall(double z_m, double r_m2, double gate_sigma, bool& applied) {
-  return scalar_update(h_hall_, z_m - h_hall_.dot(x_), r_m2, gate_sigma, applied);
+  const double nu_norm = scalar_update(h_hall_, z_m - h_hall_.dot(x_), r_m2, gate_sigma, applied);
+  const double h = tuning_.accel_bias_step_cusum;
+  if (accel_available_ && h > 0.0) {
+    // Hall innovations persistently of one sign: the accelerometer's reading moved
+    // without the carriage (a bias step). Free the bias state to follow it.
+    const bool up = cusum_step(hall_up_, nu_norm, 0.0, 1.0, h);
+    const bool down = cusum_step(hall_down_, -nu_norm, 0.0, 1.0, h);
+    if (up || down) {
+      const double sb = tuning_.accel_bias_step_std_mps2;
+      p_(kBias, kBias) += sb * sb;
+      ++bias_steps_;
+      hall_up_ = hall_down_ = Cusum{};
+      if (steady_) leave_steady(nullptr, 0.0, 0.0);
+    }
+  }
+  return nu_norm;
 }
 
 double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bool& applied) {
@@ -158,8 +276,23 @@ double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bo
   h(kBias) = 1.0;
   h(kScale) = a_delayed;
   if (vibration_) h(kVibIn) = 1.0;
-  const double predicted = scale * a_delayed + x_(kBias) + (vibration_ ? x_(kVibIn) : 0.0);
-  return scalar_update(h, z_mps2 - predicted, r, gate_sigma, applied);
+  const double vib = vibration_ ? x_(kVibIn) : 0.0;
+  const double predicted = scale * a_delayed + x_(kBias) + vib;
+  const double nu = z_mps2 - predicted;
+  const double nu_norm = scalar_update(h, nu, r, gate_sigma, applied);
+  if (!applied) return nu_norm;  // a spike tells nothing about the motion
+  steady_test(z_mps2 - vib);
+  if (steady_) {
+    const double th = tuning_.steady_exit_cusum;
+    if (cusum_step(acc_up_, nu_norm, nu, 1.0, th)) {
+      const Cusum c = acc_up_;
+      leave_steady(&c, nu, r);
+    } else if (cusum_step(acc_down_, -nu_norm, nu, 1.0, th)) {
+      const Cusum c = acc_down_;
+      leave_steady(&c, nu, r);
+    }
+  }
+  return nu_norm;
 }
 
 double FusionFilter::vibration_amplitude_mps2() const {

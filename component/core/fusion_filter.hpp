@@ -10,11 +10,26 @@
 //  - a resonator at the frame's vibration frequency: the moving accelerometer
 //    feels the frame vibrate, the Halls (on the frame's track) do not, and the
 //    filter learns the vibration's amplitude and phase instead of taking it for
-//    motion.
-// Fixed-size Eigen; nothing allocates per sample.
+//    motion;
+//  - two models of how the acceleration changes: an agile one (jerk state plus
+//    white snap) while it changes, and a calm one (white jerk of a fraction of a
+//    m/s^3, jerk state at rest) while it holds still, as it does in constant-speed
+//    and constant-acceleration phases. The calm model averages the
+//    accelerometer's noise instead of integrating it into the velocity. It is
+//    entered when the accelerometer's own jerk estimate stays small for a while
+//    and left as soon as a CUSUM of its accelerometer innovations shows the
+//    acceleration changing; what it missed since the change began (the sum of
+//    those innovations) is then added back to acceleration, velocity and position;
+//  - detection of a step in the accelerometer's bias: a CUSUM of the Hall
+//    innovations that widens the bias covariance, so the bias state follows.
+// Fixed-size Eigen and arrays; nothing allocates per sample.
 #pragma once
 
+#include <array>
+
 #include <Eigen/Core>
+
+#include <cstdint>
 
 #include "motor.hpp"
 
@@ -50,9 +65,40 @@ class FusionFilter {
   double period_s() const { return ts_; }
   /// The frame vibration's current amplitude estimate [m/s^2].
   double vibration_amplitude_mps2() const;
+  /// True while the calm (steady acceleration) model runs.
+  bool steady() const { return steady_; }
+  /// Times the Hall innovations pointed to a step in the accelerometer bias.
+  std::uint64_t bias_steps_detected() const { return bias_steps_; }
 
  private:
   double scalar_update(const Row& h, double innovation, double r, double gate_sigma, bool& applied);
+
+  /// One side of a CUSUM, with what it summed since it last left zero.
+  struct Cusum {
+    double g = 0.0;   ///< statistic
+    double n = 0.0;   ///< samples since it left zero
+    double s0 = 0.0;  ///< sum of raw innovations
+    double s1 = 0.0;  ///< sum of (sample index since start) * innovation
+  };
+  static bool cusum_step(Cusum& c, double z, double nu, double drift, double threshold);
+  void enter_steady();
+  void leave_steady(const Cusum* c, double last_nu, double r);
+  void steady_test(double reading);
+  void clear_detectors();
+
+  // Steady-motion detection: two consecutive windows of accelerometer readings.
+  static constexpr int kWin = 80;
+  std::array<double, 2 * kWin> win_{};
+  int win_head_ = 0;
+  int win_filled_ = 0;
+  double win_old_ = 0.0, win_new_ = 0.0;
+  int calm_count_ = 0;
+  int hold_samples_ = 0;
+  bool steady_ = false;
+  Cusum acc_up_, acc_down_;
+  Cusum hall_up_, hall_down_;
+  std::uint64_t bias_steps_ = 0;
+  Mat q_steady_;  ///< process noise of the calm model
 
   double ts_;
   Mat a_;

@@ -119,6 +119,31 @@ struct FilterConfig {
   /// Without the accelerometer (failed or absent) the filter runs on the Halls
   /// alone: white jerk of this size drives the acceleration, and the jerk state rests.
   double hall_only_jerk_std_mps3 = 500.0;
+
+  // --- steady motion ---
+  /// While the acceleration holds still, the filter runs a calm model: the jerk
+  /// state rests and white jerk of this size drives the acceleration, so the
+  /// accelerometer's noise is averaged instead of integrated into the velocity.
+  /// 0: always the agile model above.
+  double steady_jerk_std_mps3 = 0.0;
+  /// The acceleration holds still when the accelerometer's own jerk estimate (the
+  /// difference of two consecutive 20 ms means) stays below this ...
+  double steady_jerk_limit_mps3 = 0.5;
+  /// ... for this long [s].
+  double steady_hold_s = 0.02;
+  /// The calm model ends when a CUSUM of its normalised accelerometer innovations
+  /// (drift 1 sigma per sample) exceeds this: the acceleration has started to
+  /// change. What the calm model missed since the change began is then added back.
+  double steady_exit_cusum = 8.0;
+
+  // --- accelerometer bias steps ---
+  /// A CUSUM of the normalised Hall innovations (drift 1 sigma per sample) beyond
+  /// this means the Halls and the accelerometer disagree persistently, which a
+  /// sudden change of the accelerometer's bias explains: the bias covariance is
+  /// widened by accel_bias_step_std_mps2 so the filter re-estimates it within a few
+  /// tens of milliseconds (and the bias check flags it). 0: off.
+  double accel_bias_step_cusum = 40.0;
+  double accel_bias_step_std_mps2 = 1.0;
 };
 
 struct MotorConfig {

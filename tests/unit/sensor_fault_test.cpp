@@ -146,6 +146,50 @@ TEST(AccelFault, LostAccelerometerGivesHallOnlyWithLargerSigma) {
   }
 }
 
+TEST(AccelFault, BiasStepIsFlaggedFastAndFollowed) {
+  // The accelerometer's bias jumps by 1 m/s^2 (twice the calibration's bound) in
+  // the middle of the multisine motion: the Halls and the accelerometer disagree,
+  // the filter frees its bias state, the estimate leaves the calibration's bound
+  // and the accelerometer is flagged; meanwhile the position stays within the spec.
+  FaultConfig f;
+  f.kind = K::accel_bias;
+  f.start_s = kFaultAt;
+  f.magnitude = 1.0;
+  const Outcome o = run({f}, st::kAccelFault | st::kDegraded);
+  print("accel_bias_step_1mps2", o);
+  ASSERT_GE(o.detected_after_s, 0.0) << "never flagged";
+  EXPECT_LT(o.detected_after_s, 0.2) << "detected too late";
+  EXPECT_LT(o.max_valid_error_m, 5e-6) << "beyond the spec while VALID";
+  // Followed: after detection the estimate is as good as without the fault.
+  EXPECT_EQ(o.errors.not_valid, 0u);
+  EXPECT_LE(o.errors.position_m.rms(), 0.5e-6);
+  EXPECT_LE(o.errors.velocity_mps.rms(), 0.1e-3);
+  EXPECT_GE(o.errors.position_coverage(), 0.85);
+}
+
+TEST(AccelFault, NoFlagWithoutAFault) {
+  // The same run without the fault (the machine's default motion): nothing flagged.
+  const auto& r = ve::test::realistic("sim-realistic.yaml");
+  ve::sim::SimConfig cfg = r.axis.driver.sim;
+  cfg.realtime = false;
+  cfg.noise_seed = 77;
+  ve::sim::SimSource sim(r.axis.motor, cfg);
+  ASSERT_TRUE(sim.ok()) << sim.last_error();
+  ve::core::PipelineConfig pc;
+  pc.motor = r.axis.motor;
+  pc.sensors = r.cal.model;
+  pc.calibrated = true;
+  pc.start_position_m = cfg.profile.start_m;
+  ve::core::AxisPipeline pipeline(pc, r.cal.table);
+  ve::core::RawSample s;
+  std::uint64_t flagged = 0;
+  while (sim.read(s) == ve::drivers::ReadStatus::ok) {
+    if (static_cast<double>(s.t_ns) * 1e-9 > kEvalTo) break;
+    if (pipeline.step(s).status & (st::kSensorFault | st::kDegraded)) ++flagged;
+  }
+  EXPECT_EQ(flagged, 0u);
+}
+
 TEST(HallFault, TooFewSensorsIsNeverASilentWrongPosition) {
   const Outcome o = run({hall(K::hall_stuck_high, 1), hall(K::hall_stuck_mid, 2)}, 0u);
   print("two_halls_dead", o);
