@@ -157,8 +157,12 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
   const char* env_profiles = std::getenv("FASTRTPS_DEFAULT_PROFILES_FILE");
   ctx->profiles_loaded_ = !options.profiles_file.empty() || (env_profiles != nullptr && *env_profiles != '\0');
   if (ctx->profiles_loaded_ &&
-      factory->get_participant_qos_from_profile(profile::kParticipant, pq) == ReturnCode_t::RETCODE_OK) {
+      factory->get_participant_qos_from_profile(options.participant_profile, pq) == ReturnCode_t::RETCODE_OK) {
     ctx->participant_from_profile_ = true;
+  } else if (options.participant_profile != profile::kParticipant) {
+    // A profile other than the default one was asked for by name: no silent fallback.
+    error = "no DDS participant profile '" + options.participant_profile + "' loaded";
+    return nullptr;
   } else {
     factory->get_default_participant_qos(pq);
   }

@@ -38,6 +38,10 @@ inline constexpr const char* kCalibrationStatusTopic = "ve/calibration_status";
 /// Profile names in deploy/dds-profiles.xml.
 namespace profile {
 inline constexpr const char* kParticipant = "ve_participant";
+/// Shared memory only (both sides must use it; see deploy/dds-profiles.xml).
+inline constexpr const char* kParticipantShm = "ve_participant_shm";
+/// UDPv4 only: remote consumers, other DDS implementations, loopback measurements.
+inline constexpr const char* kParticipantUdp = "ve_participant_udp";
 inline constexpr const char* kStateWriter = "ve_state_writer";
 inline constexpr const char* kStateReader = "ve_state_reader";
 inline constexpr const char* kDiagnosticsWriter = "ve_diagnostics_writer";
@@ -58,6 +62,8 @@ struct DdsOptions {
   /// Fast DDS statistics topics to enable (names as in fastdds/statistics/topic_names.hpp).
   std::vector<std::string> statistics;
   std::string participant_name = "virtual-encoder";
+  /// Participant profile to use when profiles are loaded (else built-in QoS).
+  std::string participant_profile = profile::kParticipant;
   /// Announce XTypes TypeInformation (for TypeLookup-based tools). Off by default:
   /// Cyclone DDS 0.10 rejects Fast DDS 2.9's TypeInformation and then ignores our
   /// endpoints. Default from the environment: VE_DDS_TYPE_INFORMATION=1 turns it on.

@@ -2,16 +2,19 @@
 //
 // One run measures, on this host, between two processes:
 //  1. one-way latency of ve::dds::EncoderState from the product's StateWriter to the
-//     product's StateReader (DdsContext, built-in QoS: best effort, keep-last, 5 ms
-//     offered / 10 ms requested deadline), at 4 kHz;
-//  2. the same with a bare Fast DDS writer/reader (default participant, default QoS
-//     made best effort, same type and rate): the floor. Product and bare rounds are
-//     interleaved so that both see the same machine noise;
-//  3. the rate one axis sustains through the product's writer/reader: as fast as it
-//     can and paced at 20 kHz, with the samples lost (sequence gaps) and the deadline
-//     misses on both sides;
+//     product's StateReader (DdsContext, built-in state QoS: best effort, keep-last,
+//     5 ms offered / 10 ms requested deadline), at 4 kHz, over shared memory only and
+//     over UDP loopback only (both sides), and with Fast DDS's built-in pair of both;
+//  2. the same with a bare Fast DDS writer/reader (default QoS made best effort, same
+//     type, transports and rate): the floor. All kinds run in turn in every round so
+//     that they see the same machine noise. The publisher's CPU per sample and its
+//     heap allocations per write are counted too;
+//  3. the rate one axis sustains through the product's writer/reader (shared memory):
+//     as fast as it can and paced at 20 kHz, with the samples lost (sequence gaps) and
+//     the deadline misses on both sides;
 //  4. CPU of `virtual-encoder run` (built-in sim machine, one axis at 4 kHz) from
-//     /proc/PID/stat while a product subscriber is matched.
+//     /proc/PID/stat and per thread, with a shared-memory subscriber, with a built-in
+//     transports subscriber, and with none.
 // Latency = subscriber's CLOCK_REALTIME when the sample is handed to it (the
 // product's per-sample callback / the bare listener right after take) minus the
 // sample's publish_time_ns, stamped just before write(); one host, one clock.
@@ -21,7 +24,9 @@
 //
 //   bench_dds_latency [--rounds N] [--round-s S] [--rate-s S] [--cpu-s S]
 //                     [--domain D] [--out FILE | --no-write]
-// The subscriber side is this program again: bench_dds_latency --sub product|bare ...
+// The subscriber side is this program again:
+//   bench_dds_latency --sub product|product-nodl|bare --transport shm|udp|builtin --profiles FILE ...
+#include <dirent.h>
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
@@ -63,7 +68,12 @@
 #include <fastdds/dds/subscriber/Subscriber.hpp>
 #include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
+#include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
+#include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
 #include <spdlog/spdlog.h>
+#include <sys/resource.h>
+
+#include <new>
 
 #include "VirtualEncoder.h"
 #include "VirtualEncoderPubSubTypes.h"
@@ -92,6 +102,91 @@ std::int64_t now_ns(clockid_t c) {
   return static_cast<std::int64_t>(ts.tv_sec) * 1000000000 + ts.tv_nsec;
 }
 std::int64_t rt_ns() { return now_ns(CLOCK_REALTIME); }
+
+// ------------------------------------------------------------------ allocations
+
+/// Heap allocations (operator new, program-wide: Fast DDS's included) made by the
+/// thread that set `t_count_allocations`; the publisher counts its write loop.
+thread_local bool t_count_allocations = false;
+thread_local std::uint64_t t_allocations = 0;
+
+// ------------------------------------------------------------------ transports
+
+/// "shm": shared memory only on both sides; "udp": UDPv4 only (loopback);
+/// "builtin": Fast DDS's built-in transports (shared memory and UDPv4 together).
+bool valid_transport(const std::string& t) { return t == "shm" || t == "udp" || t == "builtin"; }
+
+/// Participant profiles of the product for one transport, as deploy/dds-profiles.xml
+/// defines them (same transport descriptors), in a file of their own so that the
+/// product's state QoS stay the built-in ones (the no-deadline diagnostic needs that).
+std::string g_profiles_file;
+/// For `virtual-encoder run`: "ve_participant" on shared memory only.
+std::string g_run_shm_profiles_file;
+
+bool write_profiles_file() {
+  g_profiles_file = "/tmp/bench_dds_latency_" + std::to_string(getpid()) + ".xml";
+  std::ofstream f(g_profiles_file);
+  f << R"(<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor><transport_id>ve_shm</transport_id><type>SHM</type><segment_size>1048576</segment_size></transport_descriptor>
+      <transport_descriptor><transport_id>ve_udp</transport_id><type>UDPv4</type></transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="ve_participant_shm"><rtps><useBuiltinTransports>false</useBuiltinTransports>
+      <userTransports><transport_id>ve_shm</transport_id></userTransports></rtps></participant>
+    <participant profile_name="ve_participant_udp"><rtps><useBuiltinTransports>false</useBuiltinTransports>
+      <userTransports><transport_id>ve_udp</transport_id></userTransports></rtps></participant>
+  </profiles>
+</dds>
+)";
+  if (!f) return false;
+  g_run_shm_profiles_file = "/tmp/bench_dds_latency_run_shm_" + std::to_string(getpid()) + ".xml";
+  std::ofstream g(g_run_shm_profiles_file);
+  g << R"(<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor><transport_id>ve_shm</transport_id><type>SHM</type><segment_size>1048576</segment_size></transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="ve_participant"><rtps><useBuiltinTransports>false</useBuiltinTransports>
+      <userTransports><transport_id>ve_shm</transport_id></userTransports></rtps></participant>
+  </profiles>
+</dds>
+)";
+  return static_cast<bool>(g);
+}
+
+/// The product's DdsOptions for a transport.
+void product_transport(ve::app::DdsOptions& o, const std::string& transport) {
+  if (transport == "builtin") return;
+  o.profiles_file = g_profiles_file;
+  o.participant_profile = transport == "shm" ? ve::app::profile::kParticipantShm : ve::app::profile::kParticipantUdp;
+}
+
+/// The bare participant's transports (the same descriptors, set in code).
+void bare_transport(fdds::DomainParticipantQos& pq, const std::string& transport) {
+  if (transport == "builtin") return;
+  pq.transport().use_builtin_transports = false;
+  if (transport == "shm") {
+    auto shm = std::make_shared<eprosima::fastdds::rtps::SharedMemTransportDescriptor>();
+    shm->segment_size(1048576);
+    pq.transport().user_transports.push_back(shm);
+  } else {
+    pq.transport().user_transports.push_back(std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>());
+  }
+}
+
+double thread_cpu_s() {
+  rusage u{};
+  getrusage(RUSAGE_THREAD, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-6;
+}
+double process_cpu_s() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + u.ru_stime.tv_sec + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-6;
+}
 std::int64_t mono_ns() { return now_ns(CLOCK_MONOTONIC); }
 
 void sleep_until_mono(std::int64_t t) {
@@ -169,11 +264,12 @@ double reader_deadline(const std::string& kind) { return kind == "product" ? kPr
 /// reader QoS except best effort. No product code in between.
 class Bare {
  public:
-  explicit Bare(int domain) {
+  Bare(int domain, const std::string& transport) {
     auto* f = fdds::DomainParticipantFactory::get_instance();
     fdds::DomainParticipantQos pq;
     f->get_default_participant_qos(pq);
     pq.name("bench-bare");
+    bare_transport(pq, transport);
     participant_ = f->create_participant(static_cast<fdds::DomainId_t>(domain), pq);
     if (participant_ == nullptr) return;
     fdds::TypeSupport type(new ve::dds::EncoderStatePubSubType());
@@ -265,7 +361,7 @@ void say(const std::string& line) {
 }
 
 /// Child: subscribe, report READY when matched, on "STOP" (or EOF) print the result.
-int subscriber_main(const std::string& kind, int domain, std::uint64_t warmup) {
+int subscriber_main(const std::string& kind, const std::string& transport, int domain, std::uint64_t warmup) {
   Recorder rec(warmup);
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateReader> reader;
@@ -277,6 +373,7 @@ int subscriber_main(const std::string& kind, int domain, std::uint64_t warmup) {
     ve::app::DdsOptions o;
     o.domain = domain;
     o.participant_name = "bench-product-sub";
+    product_transport(o, transport);
     std::string error;
     ctx = ve::app::DdsContext::create(o, error);
     if (!ctx) {
@@ -298,7 +395,7 @@ int subscriber_main(const std::string& kind, int domain, std::uint64_t warmup) {
       return g;
     };
   } else {
-    bare = std::make_unique<Bare>(domain);
+    bare = std::make_unique<Bare>(domain, transport);
     if (!bare->make_reader(rec)) {
       say("ERROR cannot create the bare reader");
       return 1;
@@ -344,7 +441,7 @@ extern "C" char** environ;
 class Child {
  public:
   /// Spawn argv with stdin/stdout on pipes (stdout_to_pipe) or to /dev/null.
-  bool spawn(const std::vector<std::string>& args, bool pipes) {
+  bool spawn(const std::vector<std::string>& args, bool pipes, const std::vector<std::string>& extra_env = {}) {
     int in[2] = {-1, -1}, out[2] = {-1, -1};
     posix_spawn_file_actions_t fa;
     posix_spawn_file_actions_init(&fa);
@@ -360,7 +457,11 @@ class Child {
     std::vector<char*> argv;
     for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
-    const int rc = posix_spawn(&pid_, argv[0], &fa, nullptr, argv.data(), environ);
+    std::vector<char*> envp;
+    for (char** e = environ; *e != nullptr; ++e) envp.push_back(*e);
+    for (const auto& e : extra_env) envp.push_back(const_cast<char*>(e.c_str()));
+    envp.push_back(nullptr);
+    const int rc = posix_spawn(&pid_, argv[0], &fa, nullptr, argv.data(), envp.data());
     posix_spawn_file_actions_destroy(&fa);
     if (pipes) {
       close(in[0]);
@@ -495,6 +596,9 @@ struct PubResult {
   std::uint64_t published = 0, write_failures = 0, late_wakeups = 0;
   std::uint64_t offered_deadline_missed = 0;
   double seconds = 0;
+  double thread_cpu_s = 0;   ///< the publishing thread (sleep, write) over the loop
+  double process_cpu_s = 0;  ///< the whole publisher process (Fast DDS threads too)
+  std::uint64_t allocations = 0;  ///< heap allocations of the publishing thread in the loop
   SubResult sub;
 };
 
@@ -517,10 +621,12 @@ void fill_sample(ve::dds::EncoderState& s, std::uint64_t seq, std::int64_t t) {
 
 /// One measurement: a subscriber child of `kind`, and this process publishing at
 /// rate_hz (<= 0: as fast as it can) for seconds through the same kind of writer.
-PubResult run_pair(const std::string& kind, int domain, double rate_hz, double seconds, std::uint64_t warmup) {
+PubResult run_pair(const std::string& kind, const std::string& transport, int domain, double rate_hz, double seconds,
+                   std::uint64_t warmup) {
   PubResult res;
   Child child;
-  if (!child.spawn({self_exe(), "--sub", kind, "--domain", std::to_string(domain), "--warmup", std::to_string(warmup)},
+  if (!child.spawn({self_exe(), "--sub", kind, "--transport", transport, "--profiles", g_profiles_file, "--domain",
+                    std::to_string(domain), "--warmup", std::to_string(warmup)},
                    true)) {
     res.error = "cannot spawn the subscriber";
     return res;
@@ -533,6 +639,7 @@ PubResult run_pair(const std::string& kind, int domain, double rate_hz, double s
     ve::app::DdsOptions o;
     o.domain = domain;
     o.participant_name = "bench-product-pub";
+    product_transport(o, transport);
     ctx = ve::app::DdsContext::create(o, res.error);
     if (!ctx) return res;
     writer = std::make_unique<ve::app::StateWriter>(*ctx, writer_deadline(kind));
@@ -541,7 +648,7 @@ PubResult run_pair(const std::string& kind, int domain, double rate_hz, double s
       return res;
     }
   } else {
-    bare = std::make_unique<Bare>(domain);
+    bare = std::make_unique<Bare>(domain, transport);
     if (!bare->make_writer()) {
       res.error = "cannot create the bare writer";
       return res;
@@ -568,6 +675,9 @@ PubResult run_pair(const std::string& kind, int domain, double rate_hz, double s
 
   ve::dds::EncoderState s;
   const std::int64_t period = rate_hz > 0 ? static_cast<std::int64_t>(std::llround(1e9 / rate_hz)) : 0;
+  const double cpu_thread0 = thread_cpu_s(), cpu_process0 = process_cpu_s();
+  t_allocations = 0;
+  t_count_allocations = true;
   const std::int64_t start = mono_ns();
   const std::int64_t end = start + static_cast<std::int64_t>(seconds * 1e9);
   std::int64_t next = start;
@@ -611,6 +721,10 @@ PubResult run_pair(const std::string& kind, int domain, double rate_hz, double s
     if (!ok) ++res.write_failures;
   }
   res.seconds = (mono_ns() - start) * 1e-9;
+  t_count_allocations = false;
+  res.allocations = t_allocations;
+  res.thread_cpu_s = thread_cpu_s() - cpu_thread0;
+  res.process_cpu_s = process_cpu_s() - cpu_process0;
   res.published = seq;
   // Offered-deadline misses while publishing (the silence after the last sample is not one).
   if (writer) res.offered_deadline_missed = writer->deadline_missed_total();
@@ -639,10 +753,11 @@ PubResult run_pair(const std::string& kind, int domain, double rate_hz, double s
 /// (shared, loaded) host; a pair that did not match is torn down and started again.
 int g_match_retries = 0;
 
-PubResult run_pair_retry(const std::string& kind, int domain, double rate_hz, double seconds, std::uint64_t warmup) {
+PubResult run_pair_retry(const std::string& kind, const std::string& transport, int domain, double rate_hz,
+                         double seconds, std::uint64_t warmup) {
   PubResult r;
   for (int attempt = 1; attempt <= 3; ++attempt) {
-    r = run_pair(kind, domain, rate_hz, seconds, warmup);
+    r = run_pair(kind, transport, domain, rate_hz, seconds, warmup);
     if (r.ok || (r.error.rfind("subscriber not ready", 0) != 0 && r.error != "writer did not match")) return r;
     std::fprintf(stderr, "    attempt %d: %s; retrying\n", attempt, r.error.c_str());
     ++g_match_retries;
@@ -652,8 +767,8 @@ PubResult run_pair_retry(const std::string& kind, int domain, double rate_hz, do
 
 // ------------------------------------------------------------------ CPU of `virtual-encoder run`
 
-bool proc_cpu_ticks(pid_t pid, std::uint64_t& ticks) {
-  std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
+bool proc_cpu_ticks_path(const std::string& path, std::uint64_t& ticks) {
+  std::ifstream f(path);
   std::string all;
   if (!std::getline(f, all)) return false;
   const auto rp = all.rfind(')');
@@ -669,20 +784,47 @@ bool proc_cpu_ticks(pid_t pid, std::uint64_t& ticks) {
   ticks = utime + stime;
   return true;
 }
+bool proc_cpu_ticks(pid_t pid, std::uint64_t& ticks) {
+  return proc_cpu_ticks_path("/proc/" + std::to_string(pid) + "/stat", ticks);
+}
+
+/// utime+stime of the threads of `pid` whose name starts with "ve-" (the sample
+/// threads, named by `run`) and of all the others.
+bool proc_thread_ticks(pid_t pid, std::uint64_t& axis, std::uint64_t& other) {
+  axis = other = 0;
+  const std::string dir = "/proc/" + std::to_string(pid) + "/task";
+  std::unique_ptr<DIR, int (*)(DIR*)> d(opendir(dir.c_str()), closedir);
+  if (!d) return false;
+  while (dirent* e = readdir(d.get())) {
+    if (e->d_name[0] == '.') continue;
+    std::ifstream comm(dir + "/" + e->d_name + "/comm");
+    std::string name;
+    std::getline(comm, name);
+    std::uint64_t t = 0;
+    if (!proc_cpu_ticks_path(dir + "/" + e->d_name + "/stat", t)) continue;
+    (name.rfind("ve-", 0) == 0 ? axis : other) += t;
+  }
+  return true;
+}
 
 struct CpuResult {
   bool ok = false;
   std::string error;
+  double axis_thread_percent = 0, other_threads_percent = 0;
   double window_s = 0, cpu_s = 0, percent = 0;
   double lifetime_percent = 0;
   SubResult sub;
 };
 
-CpuResult measure_cpu(int domain, double seconds, bool with_subscriber) {
+/// `sub_transport` empty: no subscriber.
+CpuResult measure_cpu(int domain, double seconds, const std::string& sub_transport) {
   CpuResult r;
   Child sub;
+  const bool with_subscriber = !sub_transport.empty();
   if (with_subscriber &&
-      !sub.spawn({self_exe(), "--sub", "product", "--domain", std::to_string(domain), "--warmup", "0"}, true)) {
+      !sub.spawn({self_exe(), "--sub", "product", "--transport", sub_transport, "--profiles", g_profiles_file,
+                  "--domain", std::to_string(domain), "--warmup", "0"},
+                 true)) {
     r.error = "cannot spawn the subscriber";
     return r;
   }
@@ -695,7 +837,11 @@ CpuResult measure_cpu(int domain, double seconds, bool with_subscriber) {
     args.push_back("--wait-for-subscriber");
     args.push_back("20");
   }
-  if (!ve.spawn(args, false)) {
+  // A shared-memory-only subscriber discovers only a shared-memory participant: `run`
+  // then gets the same transport through its "ve_participant" profile.
+  std::vector<std::string> env;
+  if (sub_transport == "shm") env.push_back("FASTRTPS_DEFAULT_PROFILES_FILE=" + g_run_shm_profiles_file);
+  if (!ve.spawn(args, false, env)) {
     r.error = std::string("cannot spawn ") + VE_BINARY;
     return r;
   }
@@ -705,15 +851,15 @@ CpuResult measure_cpu(int domain, double seconds, bool with_subscriber) {
     return r;
   }
   std::this_thread::sleep_for(std::chrono::duration<double>(settle_s));
-  std::uint64_t t0 = 0, t1 = 0;
+  std::uint64_t t0 = 0, t1 = 0, a0 = 0, a1 = 0, o0 = 0, o1 = 0;
   const std::int64_t w0 = mono_ns();
-  if (!proc_cpu_ticks(ve.pid(), t0)) {
+  if (!proc_cpu_ticks(ve.pid(), t0) || !proc_thread_ticks(ve.pid(), a0, o0)) {
     r.error = "cannot read /proc/PID/stat of virtual-encoder";
     return r;
   }
   std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
   const std::int64_t w1 = mono_ns();
-  if (!proc_cpu_ticks(ve.pid(), t1)) {
+  if (!proc_cpu_ticks(ve.pid(), t1) || !proc_thread_ticks(ve.pid(), a1, o1)) {
     r.error = "virtual-encoder ended early";
     return r;
   }
@@ -721,6 +867,8 @@ CpuResult measure_cpu(int domain, double seconds, bool with_subscriber) {
   r.window_s = (w1 - w0) * 1e-9;
   r.cpu_s = (t1 - t0) / hz;
   r.percent = 100.0 * r.cpu_s / r.window_s;
+  r.axis_thread_percent = 100.0 * ((a1 - a0) / hz) / r.window_s;
+  r.other_threads_percent = 100.0 * ((o1 - o0) / hz) / r.window_s;
   r.lifetime_percent = 100.0 * (t1 / hz) / ((w1 - spawn_ns) * 1e-9);
   const int rc = ve.finish(seconds + 20.0);
   if (rc != 0) std::fprintf(stderr, "virtual-encoder run exited with %d\n", rc);
@@ -752,14 +900,14 @@ struct Options {
   double round_s = 2.5;   // seconds per latency round (4 kHz)
   double rate_s = 3.0;    // seconds per sustained-rate run
   double cpu_s = 10.0;    // CPU window of `virtual-encoder run`
-  int domain = 90;        // uses domain .. domain+7 (Linux: keep the ports below the ephemeral range)
+  int domain = 80;        // uses domain .. domain+12 (Linux: keep the ports below the ephemeral range)
   std::string out = std::string(VE_BENCH_SOURCE_DIR) + "/tests/bench/results/dds_latency.md";
   bool write = true;
 };
 
 int orchestrator_main(const Options& opt, const std::string& command) {
   std::fprintf(stderr, "bench_dds_latency: domains %d..%d, %d x %.1f s latency rounds per kind\n", opt.domain,
-               opt.domain + 7, opt.rounds, opt.round_s);
+               opt.domain + 10, opt.rounds, opt.round_s);
   const double lat_rate = 4000.0;
   auto loadavg = [] {
     std::ifstream f("/proc/loadavg");
@@ -769,100 +917,137 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   };
   const std::string load_before = loadavg();
   const std::uint64_t warmup = 400;  // the first 0.1 s of each round (first-contact costs) is not counted
-  // 1+2: latency, product and bare interleaved, pooled by concatenating the children's percentiles
-  // is not valid, so each child reports its own; we pool by merging rounds' raw stats below.
-  std::vector<PubResult> prod, bare, nodl;
+  // 1+2: latency over shared memory and over UDP loopback, product and bare
+  // interleaved (each round runs every kind once, so all see the same machine noise).
+  struct LatKind {
+    const char* label;
+    std::string kind, transport;
+    int domain_offset;
+    std::vector<PubResult> runs;
+  };
+  std::vector<LatKind> kinds{{"product, shared memory", "product", "shm", 0, {}},
+                             {"bare, shared memory", "bare", "shm", 1, {}},
+                             {"product, UDP loopback", "product", "udp", 8, {}},
+                             {"bare, UDP loopback", "bare", "udp", 9, {}},
+                             {"product without deadlines, shared memory", "product-nodl", "shm", 2, {}},
+                             {"product, shm + UDP (built-in transports)", "product", "builtin", 10, {}},
+                             {"bare, shm + UDP (built-in transports)", "bare", "builtin", 11, {}}};
   for (int r = 0; r < opt.rounds; ++r) {
-    for (const std::string kind : {"product", "bare", "product-nodl"}) {
-      const int dom = opt.domain + (kind == "product" ? 0 : kind == "bare" ? 1 : 2);
-      std::fprintf(stderr, "  latency round %d: %s at 4 kHz for %.1f s ...\n", r + 1, kind.c_str(), opt.round_s);
-      PubResult p = run_pair_retry(kind, dom, lat_rate, opt.round_s, warmup);
+    for (auto& k : kinds) {
+      std::fprintf(stderr, "  latency round %d: %s at 4 kHz for %.1f s ...\n", r + 1, k.label, opt.round_s);
+      PubResult p = run_pair_retry(k.kind, k.transport, opt.domain + k.domain_offset, lat_rate, opt.round_s, warmup);
       if (!p.ok) {
         std::fprintf(stderr, "    FAILED: %s\n", p.error.c_str());
         return 1;
       }
-      std::fprintf(stderr, "    published %" PRIu64 ", received %" PRIu64 ", p50 %.1f us, p99 %.1f us, max %.1f us\n",
-                   p.published, p.sub.received, p.sub.lat.p50_us, p.sub.lat.p99_us, p.sub.lat.max_us);
-      (kind == "product" ? prod : kind == "bare" ? bare : nodl).push_back(p);
+      std::fprintf(stderr,
+                   "    published %" PRIu64 ", received %" PRIu64 ", p50 %.1f us, p99 %.1f us, max %.1f us; "
+                   "publisher %.1f us CPU/sample (thread %.1f), %" PRIu64 " allocations\n",
+                   p.published, p.sub.received, p.sub.lat.p50_us, p.sub.lat.p99_us, p.sub.lat.max_us,
+                   p.published ? 1e6 * p.process_cpu_s / p.published : 0.0,
+                   p.published ? 1e6 * p.thread_cpu_s / p.published : 0.0, p.allocations);
+      k.runs.push_back(p);
     }
   }
-  // Pool rounds: percentiles of the pooled samples are not derivable from per-round
-  // percentiles, so the report takes the median over rounds of each percentile
-  // (rounds have equal sample counts) and the max of the maxima.
-  auto pool = [](const std::vector<PubResult>& v, std::uint64_t& pub, std::uint64_t& rec, std::uint64_t& gaps,
-                 std::uint64_t& dl_w, std::uint64_t& dl_r, std::uint64_t& late) {
+  // Percentiles of pooled samples are not derivable from per-round percentiles, so
+  // the report takes the median over rounds of each percentile (rounds have equal
+  // sample counts) and the max of the maxima.
+  struct Pooled {
     LatencyStats s;
-    std::vector<double> p50, p90, p99;
-    pub = rec = gaps = dl_w = dl_r = late = 0;
+    std::uint64_t published = 0, received = 0, lost = 0, dl_w = 0, dl_r = 0, late = 0, allocations = 0;
+    double thread_us = 0, process_us = 0;  // CPU per published sample (medians over rounds)
+  };
+  auto med = [](std::vector<double> x) {
+    std::sort(x.begin(), x.end());
+    const std::size_t n = x.size();
+    return n == 0 ? 0.0 : (n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]));
+  };
+  auto pool = [&](const std::vector<PubResult>& v) {
+    Pooled o;
+    std::vector<double> p50, p90, p99, th, pr;
     for (const auto& r : v) {
       p50.push_back(r.sub.lat.p50_us);
       p90.push_back(r.sub.lat.p90_us);
       p99.push_back(r.sub.lat.p99_us);
-      s.max_us = std::max(s.max_us, r.sub.lat.max_us);
-      s.n += r.sub.lat.n;
-      pub += r.published;
-      rec += r.sub.received;
-      gaps += r.published - std::min(r.published, r.sub.received);
-      dl_w += r.offered_deadline_missed;
-      dl_r += r.sub.deadline_missed;
-      late += r.late_wakeups;
+      o.s.max_us = std::max(o.s.max_us, r.sub.lat.max_us);
+      o.s.n += r.sub.lat.n;
+      o.published += r.published;
+      o.received += r.sub.received;
+      o.lost += r.published - std::min(r.published, r.sub.received);
+      o.dl_w += r.offered_deadline_missed;
+      o.dl_r += r.sub.deadline_missed;
+      o.late += r.late_wakeups;
+      o.allocations += r.allocations;
+      if (r.published > 0) {
+        th.push_back(1e6 * r.thread_cpu_s / r.published);
+        pr.push_back(1e6 * r.process_cpu_s / r.published);
+      }
     }
-    auto med = [](std::vector<double> x) {
-      std::sort(x.begin(), x.end());
-      const std::size_t n = x.size();
-      return n == 0 ? 0.0 : (n % 2 ? x[n / 2] : 0.5 * (x[n / 2 - 1] + x[n / 2]));
-    };
-    s.p50_us = med(p50);
-    s.p90_us = med(p90);
-    s.p99_us = med(p99);
-    return s;
+    o.s.p50_us = med(p50);
+    o.s.p90_us = med(p90);
+    o.s.p99_us = med(p99);
+    o.thread_us = med(th);
+    o.process_us = med(pr);
+    return o;
   };
-  std::uint64_t pp, pr, pg, pdw, pdr, pl, bp, br, bg, bdw, bdr, bl;
-  const LatencyStats P = pool(prod, pp, pr, pg, pdw, pdr, pl);
-  const LatencyStats B = pool(bare, bp, br, bg, bdw, bdr, bl);
-  std::uint64_t np, nr, ng, ndw, ndr, nl;
-  const LatencyStats N = pool(nodl, np, nr, ng, ndw, ndr, nl);
-  const double r50 = B.p50_us > 0 ? P.p50_us / B.p50_us : 0, r99 = B.p99_us > 0 ? P.p99_us / B.p99_us : 0;
+  std::vector<Pooled> pooled;
+  for (const auto& k : kinds) pooled.push_back(pool(k.runs));
+  const Pooled &PS = pooled[0], &BS = pooled[1], &PU = pooled[2], &BU = pooled[3], &NS = pooled[4], &PB = pooled[5],
+               &BB = pooled[6];
+  auto ratio = [](double a, double b) { return b > 0 ? a / b : 0.0; };
+  const double r50s = ratio(PS.s.p50_us, BS.s.p50_us), r99s = ratio(PS.s.p99_us, BS.s.p99_us);
+  const double r50u = ratio(PU.s.p50_us, BU.s.p50_us), r99u = ratio(PU.s.p99_us, BU.s.p99_us);
+  const double r50b = ratio(PB.s.p50_us, BB.s.p50_us), r99b = ratio(PB.s.p99_us, BB.s.p99_us);
 
-  // 3: sustained rate through the product's writer/reader.
+  // 3: sustained rate through the product's writer/reader (shared memory, as a local consumer).
   std::fprintf(stderr, "  sustained rate: product writer as fast as it can for %.1f s ...\n", opt.rate_s);
-  PubResult max_rate = run_pair_retry("product", opt.domain + 3, 0.0, opt.rate_s, 0);
+  PubResult max_rate = run_pair_retry("product", "shm", opt.domain + 3, 0.0, opt.rate_s, 0);
   if (!max_rate.ok) {
     std::fprintf(stderr, "    FAILED: %s\n", max_rate.error.c_str());
     return 1;
   }
   std::fprintf(stderr, "  sustained rate: product writer paced at 20 kHz for %.1f s ...\n", opt.rate_s);
-  PubResult paced = run_pair_retry("product", opt.domain + 4, 20000.0, opt.rate_s, 0);
+  PubResult paced = run_pair_retry("product", "shm", opt.domain + 4, 20000.0, opt.rate_s, 0);
   if (!paced.ok) {
     std::fprintf(stderr, "    FAILED: %s\n", paced.error.c_str());
     return 1;
   }
   std::fprintf(stderr, "  sustained rate: bare writer as fast as it can for %.1f s (reference) ...\n", opt.rate_s);
-  PubResult bare_max = run_pair_retry("bare", opt.domain + 5, 0.0, opt.rate_s, 0);
+  PubResult bare_max = run_pair_retry("bare", "shm", opt.domain + 5, 0.0, opt.rate_s, 0);
   if (!bare_max.ok) {
     std::fprintf(stderr, "    FAILED: %s\n", bare_max.error.c_str());
     return 1;
   }
 
-  // 4: CPU of virtual-encoder run.
-  std::fprintf(stderr, "  CPU: virtual-encoder run (built-in sim, 1 axis, 4 kHz) for %.1f s ...\n", opt.cpu_s);
-  CpuResult cpu;
-  for (int attempt = 1; attempt <= 3; ++attempt) {
-    cpu = measure_cpu(opt.domain + 6, opt.cpu_s, true);
-    if (cpu.ok || cpu.error.rfind("subscriber did not match", 0) != 0) break;
-    std::fprintf(stderr, "    attempt %d: %s; retrying\n", attempt, cpu.error.c_str());
-    ++g_match_retries;
+  // 4: CPU of virtual-encoder run: shared memory only on both sides, Fast DDS's
+  // built-in transports on both sides (shared memory and UDP: every sample is sent
+  // twice), and no subscriber.
+  struct CpuRun {
+    const char* label;
+    std::string transport;
+    int domain_offset;
+    CpuResult r;
+  };
+  std::vector<CpuRun> cpu_runs{{"product subscriber, shared memory only (both sides)", "shm", 6, {}},
+                               {"product subscriber, built-in transports (shm + UDP)", "builtin", 12, {}},
+                               {"no subscriber (reference)", "", 7, {}}};
+  for (auto& c : cpu_runs) {
+    std::fprintf(stderr, "  CPU: virtual-encoder run (built-in sim, 1 axis, 4 kHz), %s, for %.1f s ...\n", c.label,
+                 opt.cpu_s);
+    for (int attempt = 1; attempt <= 3; ++attempt) {
+      c.r = measure_cpu(opt.domain + c.domain_offset, opt.cpu_s, c.transport);
+      if (c.r.ok || c.r.error.rfind("subscriber did not match", 0) != 0) break;
+      std::fprintf(stderr, "    attempt %d: %s; retrying\n", attempt, c.r.error.c_str());
+      ++g_match_retries;
+    }
+    if (!c.r.ok) {
+      std::fprintf(stderr, "    FAILED: %s\n", c.r.error.c_str());
+      return 1;
+    }
+    std::fprintf(stderr, "    %.2f %% of a core (sample thread %.2f %%, other threads %.2f %%)\n", c.r.percent,
+                 c.r.axis_thread_percent, c.r.other_threads_percent);
   }
-  if (!cpu.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", cpu.error.c_str());
-    return 1;
-  }
-  std::fprintf(stderr, "  CPU: the same without a subscriber (reference) ...\n");
-  CpuResult cpu_alone = measure_cpu(opt.domain + 7, opt.cpu_s, false);
-  if (!cpu_alone.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", cpu_alone.error.c_str());
-    return 1;
-  }
+  const CpuResult& cpu = cpu_runs[0].r;
 
   // ---- table
   char date[64];
@@ -877,74 +1062,101 @@ int orchestrator_main(const Options& opt, const std::string& command) {
                r.published ? 100.0 * lost(r) / r.published : 0.0, r.sub.gaps, r.offered_deadline_missed,
                r.sub.deadline_missed, r.sub.lat.p50_us, r.sub.lat.p99_us, r.sub.lat.max_us);
   };
+  auto lat_row = [&](const char* name, const Pooled& p) {
+    return fmt("| %s | %" PRIu64 " | %" PRIu64 " | %.1f | %.1f | %.1f | %.1f |\n", name, p.s.n, p.lost, p.s.p50_us,
+               p.s.p90_us, p.s.p99_us, p.s.max_us);
+  };
+  auto ratio_row = [&](const char* name, const Pooled& a, const Pooled& b, bool bold) {
+    const char* m = bold ? "**" : "";
+    return fmt("| %s | | | %s%.2f%s | %.2f | %s%.2f%s | %.2f |\n", name, m, ratio(a.s.p50_us, b.s.p50_us), m,
+               ratio(a.s.p90_us, b.s.p90_us), m, ratio(a.s.p99_us, b.s.p99_us), m, ratio(a.s.max_us, b.s.max_us));
+  };
   const bool rate_ok = paced.sub.rate_hz >= 19900.0 && lost(paced) == 0 && paced.offered_deadline_missed == 0 &&
                        paced.sub.deadline_missed == 0;
   std::ostringstream md;
   md << "# DDS latency, rate and CPU of the encoder-state stream\n\n";
   md << "Measured " << date << " on this host (" << std::thread::hardware_concurrency()
      << " CPUs), Fast DDS 2.9.1, one run of\n\n```\n" << command << "\n```\n\n";
-  md << "Publisher and subscriber are separate processes on one host (built-in transports: shared memory for the\n"
-        "data, UDP for discovery). Latency = subscriber's CLOCK_REALTIME when the sample is handed to it (the\n"
-        "product's StateReader per-sample callback; the bare reader's listener right after take) minus the\n"
-        "sample's `publish_time_ns`, stamped just before `write()`. The first "
+  md << "Publisher and subscriber are separate processes on one host. Both sides use the same transports: shared\n"
+        "memory only, UDPv4 only (loopback), or Fast DDS's built-in pair (both). The product takes them from the\n"
+        "participant profiles `ve_participant_shm` / `ve_participant_udp` (the transport descriptors of\n"
+        "deploy/dds-profiles.xml), the bare participant from the same descriptors set in code. Latency = subscriber's\n"
+        "CLOCK_REALTIME when the sample is handed to it (the product's StateReader per-sample callback; the bare\n"
+        "reader's listener right after take) minus the sample's `publish_time_ns`, stamped just before `write()`.\n"
+        "The first "
      << warmup << " samples of each round are not counted.\n"
         "Product = DdsContext + StateWriter (per-axis writer, 5 ms offered deadline) -> StateReader (10 ms requested\n"
-        "deadline), built-in QoS (best effort, keep last, preallocated history, as `virtual-encoder run` without a\n"
-        "profiles file). Bare = a default DomainParticipant and DataWriter/DataReader with default QoS made best\n"
-        "effort, same type and topic layout, no product code. Product and bare rounds alternate ("
+        "deadline), built-in state QoS (best effort, keep last, preallocated history). Bare = a DomainParticipant\n"
+        "and DataWriter/DataReader with default QoS made best effort, same type and topic layout, no product code.\n"
+        "Every kind runs once per round, in turn ("
      << opt.rounds << " x " << opt.round_s
      << " s each, 4 kHz); each percentile is the median over the rounds, max is the largest.\n\n";
   md << "## 1+2. One-way latency at 4 kHz, product vs bare Fast DDS floor\n\n";
   md << "| stack | samples | lost | p50 [us] | p90 [us] | p99 [us] | max [us] |\n|---|---|---|---|---|---|---|\n";
-  md << fmt("| product (StateWriter -> StateReader) | %" PRIu64 " | %" PRIu64 " | %.1f | %.1f | %.1f | %.1f |\n", P.n,
-            pg, P.p50_us, P.p90_us, P.p99_us, P.max_us);
-  md << fmt("| bare Fast DDS (floor) | %" PRIu64 " | %" PRIu64 " | %.1f | %.1f | %.1f | %.1f |\n", B.n, bg, B.p50_us,
-            B.p90_us, B.p99_us, B.max_us);
-  md << fmt("| **ratio product / bare** | | | **%.2f** | %.2f | **%.2f** | %.2f |\n", r50,
-            B.p90_us > 0 ? P.p90_us / B.p90_us : 0, r99, B.max_us > 0 ? P.max_us / B.max_us : 0);
-  md << fmt("| product without deadlines (diagnostic) | %" PRIu64 " | %" PRIu64 " | %.1f | %.1f | %.1f | %.1f |\n", N.n,
-            ng, N.p50_us, N.p90_us, N.p99_us, N.max_us);
-  md << fmt("| ratio product-without-deadlines / bare | | | %.2f | %.2f | %.2f | %.2f |\n\n",
-            B.p50_us > 0 ? N.p50_us / B.p50_us : 0, B.p90_us > 0 ? N.p90_us / B.p90_us : 0,
-            B.p99_us > 0 ? N.p99_us / B.p99_us : 0, B.max_us > 0 ? N.max_us / B.max_us : 0);
-  md << "The diagnostic row is the product's StateWriter/StateReader with no deadline offered or requested\n"
-        "(deadline_ms <= 0), everything else identical: it shows what the deadline timers cost.\n\n";
+  md << lat_row("product, shared memory", PS) << lat_row("bare Fast DDS, shared memory (floor)", BS)
+     << ratio_row("**ratio product / bare, shared memory**", PS, BS, true);
+  md << lat_row("product, UDP loopback", PU) << lat_row("bare Fast DDS, UDP loopback (floor)", BU)
+     << ratio_row("**ratio product / bare, UDP loopback**", PU, BU, true);
+  md << lat_row("product, built-in transports (shm + UDP)", PB) << lat_row("bare, built-in transports (shm + UDP)", BB)
+     << ratio_row("ratio product / bare, built-in transports", PB, BB, false);
+  md << lat_row("product without deadlines, shared memory (diagnostic)", NS)
+     << ratio_row("ratio product-without-deadlines / bare, shared memory", NS, BS, false) << "\n";
+  md << "The diagnostic row is the product's StateWriter/StateReader with no deadline offered or requested,\n"
+        "everything else identical: it shows what the deadline QoS costs (Fast DDS 2.9 re-arms the writer's\n"
+        "deadline timer on every write, which wakes its event thread once per sample).\n\n";
   md << "Per round (p50 / p99 / max [us]):\n\n";
-  for (int r = 0; r < opt.rounds; ++r)
-    md << fmt("- round %d: product %.1f / %.1f / %.1f, bare %.1f / %.1f / %.1f, product without deadlines "
-              "%.1f / %.1f / %.1f\n",
-              r + 1, prod[r].sub.lat.p50_us, prod[r].sub.lat.p99_us, prod[r].sub.lat.max_us, bare[r].sub.lat.p50_us,
-              bare[r].sub.lat.p99_us, bare[r].sub.lat.max_us, nodl[r].sub.lat.p50_us, nodl[r].sub.lat.p99_us,
-              nodl[r].sub.lat.max_us);
-  md << fmt("\nProduct deadline misses during the 4 kHz rounds: offered %" PRIu64 ", requested %" PRIu64
-            "; publisher wake-ups more than a period late: product %" PRIu64 ", bare %" PRIu64 ".\n\n",
-            pdw, pdr, pl, bl);
-  md << "## 3. Sustained rate, one axis\n\n";
+  for (int r = 0; r < opt.rounds; ++r) {
+    md << fmt("- round %d:", r + 1);
+    for (std::size_t k = 0; k < kinds.size(); ++k)
+      md << fmt("%s %s %.1f / %.1f / %.1f", k ? ";" : "", kinds[k].label, kinds[k].runs[r].sub.lat.p50_us,
+                kinds[k].runs[r].sub.lat.p99_us, kinds[k].runs[r].sub.lat.max_us);
+    md << "\n";
+  }
+  md << "\nPublisher side of the same rounds (CPU per published sample, median over the rounds; the thread is the\n"
+        "one that sleeps until each sample is due and writes it; the process includes Fast DDS's own threads;\n"
+        "allocations = heap allocations by the writing thread during the round, Fast DDS included):\n\n";
+  md << "| stack | publisher thread [us/sample] | publisher process [us/sample] | allocations per write | offered DL missed "
+        "| requested DL missed | wake-ups > 2 ms late |\n|---|---|---|---|---|---|---|\n";
+  for (std::size_t k = 0; k < kinds.size(); ++k) {
+    const Pooled& p = pooled[k];
+    md << fmt("| %s | %.1f | %.1f | %.3f | %" PRIu64 " | %" PRIu64 " | %" PRIu64 " |\n", kinds[k].label, p.thread_us,
+              p.process_us, p.published ? static_cast<double>(p.allocations) / p.published : 0.0, p.dl_w, p.dl_r,
+              p.late);
+  }
+  md << "\n## 3. Sustained rate, one axis (shared memory)\n\n";
   md << "| run | published [Hz] | received [Hz] | published | received | lost | seq gaps | offered DL missed | "
         "requested DL missed | latency p50/p99/max [us] |\n|---|---|---|---|---|---|---|---|---|---|\n";
   md << rate_row("product, as fast as it can", max_rate) << "\n";
   md << rate_row("product, paced 20 kHz", paced) << "\n";
   md << rate_row("bare, as fast as it can (reference)", bare_max) << "\n\n";
   md << fmt("%.1f s per run. Lost = published - received (best effort: nothing is retransmitted); seq gaps = holes\n"
-            "in the received sequence numbers.\n\n",
+            "in the received sequence numbers. Above 5 kHz the publisher writes the samples due in each 1 ms tick\n"
+            "back to back.\n\n",
             opt.rate_s);
   md << "## 4. CPU of `virtual-encoder run` (built-in sim machine, one axis, 4 kHz)\n\n";
-  md << "| run | window [s] | CPU [s] | CPU per axis [% of one core] | incl. start-up [%] | samples at the subscriber |\n"
-        "|---|---|---|---|---|---|\n";
-  md << fmt("| one product subscriber matched | %.2f | %.3f | **%.2f** | %.2f | %" PRIu64 " (%.0f Hz) |\n", cpu.window_s,
-            cpu.cpu_s, cpu.percent, cpu.lifetime_percent, cpu.sub.received, cpu.sub.rate_hz);
-  md << fmt("| no subscriber (reference) | %.2f | %.3f | %.2f | %.2f | - |\n\n", cpu_alone.window_s, cpu_alone.cpu_s,
-            cpu_alone.percent, cpu_alone.lifetime_percent);
-  md << "utime+stime of the whole process (sim source, estimator, DDS threads) from /proc/PID/stat over a window\n"
-        "starting 1.5 s after the subscriber matched (after start-up without a subscriber).\n\n";
+  md << "| run | window [s] | CPU [s] | CPU per axis [% of one core] | sample thread [%] | other threads [%] | "
+        "incl. start-up [%] | samples at the subscriber |\n|---|---|---|---|---|---|---|---|\n";
+  for (const auto& c : cpu_runs)
+    md << fmt("| %s | %.2f | %.3f | **%.2f** | %.2f | %.2f | %.2f | %s |\n", c.label, c.r.window_s, c.r.cpu_s,
+              c.r.percent, c.r.axis_thread_percent, c.r.other_threads_percent, c.r.lifetime_percent,
+              c.transport.empty() ? "-"
+                                  : fmt("%" PRIu64 " (%.0f Hz)", c.r.sub.received, c.r.sub.rate_hz).c_str());
+  md << "\n`run` uses the built-in QoS (shared memory and UDPv4), except with the shared-memory subscriber: a\n"
+        "shared-memory-only participant did not discover the built-in-transport one here, so `run` then gets a\n"
+        "shared-memory-only `ve_participant` from FASTRTPS_DEFAULT_PROFILES_FILE. utime+stime of the whole\n"
+        "process from /proc/PID/stat, and per thread from /proc/PID/task/*/stat (the sample thread is named\n"
+        "`ve-<axis>`), over a window starting 1.5 s after the subscriber matched (after start-up).\n\n";
   md << "## Targets (issue 5)\n\n| target | measured | |\n|---|---|---|\n";
-  md << fmt("| p50 <= 1.2 x bare | %.2f x | %s |\n", r50, verdict(r50 <= 1.2).c_str());
-  md << fmt("| p99 <= 2 x bare | %.2f x | %s |\n", r99, verdict(r99 <= 2.0).c_str());
+  md << fmt("| p50 <= 1.2 x bare | shared memory %.2f x, UDP %.2f x (built-in pair %.2f x) | %s |\n", r50s, r50u, r50b,
+            verdict(r50s <= 1.2 && r50u <= 1.2).c_str());
+  md << fmt("| p99 <= 2 x bare | shared memory %.2f x, UDP %.2f x (built-in pair %.2f x) | %s |\n", r99s, r99u, r99b,
+            verdict(r99s <= 2.0 && r99u <= 2.0).c_str());
   md << fmt("| >= 20 kHz, no gaps, no deadline misses | %.0f Hz paced, %" PRIu64 " lost, %" PRIu64 "+%" PRIu64
             " misses; max %.0f Hz with %" PRIu64 " lost | %s |\n",
             paced.sub.rate_hz, lost(paced), paced.offered_deadline_missed, paced.sub.deadline_missed,
             max_rate.sub.rate_hz, lost(max_rate), verdict(rate_ok).c_str());
-  md << fmt("| <= 5 %% of one core per axis at 4 kHz | %.2f %% | %s |\n", cpu.percent, verdict(cpu.percent <= 5.0).c_str());
+  md << fmt("| <= 5 %% of one core per axis at 4 kHz | %.2f %% (shared-memory subscriber) | %s |\n", cpu.percent,
+            verdict(cpu.percent <= 5.0).c_str());
 
   md << "\nDiscovery retries (a fresh pair of processes that did not match within 10 s, started again): "
      << g_match_retries << ".\n";
@@ -968,10 +1180,30 @@ int orchestrator_main(const Options& opt, const std::string& command) {
 
 }  // namespace
 
+// Counts the heap allocations of the thread that asked for it (see t_count_allocations).
+// Replacement operators on malloc/free (GCC cannot tell that they pair up).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+void* operator new(std::size_t n) {
+  if (t_count_allocations) ++t_allocations;
+  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t n) {
+  if (t_count_allocations) ++t_allocations;
+  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+#pragma GCC diagnostic pop
+
 int main(int argc, char** argv) {
   signal(SIGPIPE, SIG_IGN);
   prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);  // precise pacing wake-ups (default slack: 50 us)
-  std::string sub_kind;
+  std::string sub_kind, transport = "shm", profiles;
   std::uint64_t warmup = 0;
   Options opt;
   std::string command = "bench_dds_latency";
@@ -985,6 +1217,8 @@ int main(int argc, char** argv) {
       return argv[++i];
     };
     if (a == "--sub") sub_kind = next();
+    else if (a == "--transport") transport = next();
+    else if (a == "--profiles") profiles = next();
     else if (a == "--warmup") warmup = std::strtoull(next().c_str(), nullptr, 10);
     else if (a == "--domain") opt.domain = std::atoi(next().c_str());
     else if (a == "--rounds") opt.rounds = std::max(1, std::atoi(next().c_str()));
@@ -994,7 +1228,7 @@ int main(int argc, char** argv) {
     else if (a == "--out") opt.out = next();
     else if (a == "--no-write") opt.write = false;
     else if (a == "--help" || a == "-h") {
-      std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--cpu-s S] [--domain D(..D+5)] "
+      std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--cpu-s S] [--domain D(..D+12)] "
                   "[--out FILE | --no-write]\n",
                   argv[0]);
       return 0;
@@ -1004,8 +1238,8 @@ int main(int argc, char** argv) {
     }
     if (sub_kind.empty() && a != "--sub") command += " " + a + (a == "--no-write" ? "" : " " + std::string(argv[i]));
   }
-  if (opt.domain < 0 || opt.domain + 5 > 232) {
-    std::fprintf(stderr, "--domain: 0 .. 227\n");
+  if (opt.domain < 0 || opt.domain + (sub_kind.empty() ? 12 : 0) > 101) {
+    std::fprintf(stderr, "--domain: 0 .. 89 (Linux: keep the ports below the ephemeral range)\n");
     return 2;
   }
   spdlog::set_level(spdlog::level::warn);
@@ -1014,7 +1248,19 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "--sub product|product-nodl|bare\n");
       return 2;
     }
-    return subscriber_main(sub_kind, opt.domain, warmup);
+    if (!valid_transport(transport)) {
+      std::fprintf(stderr, "--transport shm|udp|builtin\n");
+      return 2;
+    }
+    g_profiles_file = profiles;
+    return subscriber_main(sub_kind, transport, opt.domain, warmup);
   }
-  return orchestrator_main(opt, command);
+  if (!write_profiles_file()) {
+    std::fprintf(stderr, "cannot write %s\n", g_profiles_file.c_str());
+    return 1;
+  }
+  const int rc = orchestrator_main(opt, command);
+  std::remove(g_profiles_file.c_str());
+  std::remove(g_run_shm_profiles_file.c_str());
+  return rc;
 }
