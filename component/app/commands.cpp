@@ -24,6 +24,7 @@
 #include "core/status.hpp"
 #include "core/identification.hpp"
 #include "dds_io.hpp"
+#include "realtime.hpp"
 #include "reports.hpp"
 #include "service.hpp"
 #include "signals.hpp"
@@ -385,9 +386,17 @@ int run_command(const RunOptions& options) {
       }
       spdlog::info("{} subscriber(s) matched; starting", state_writer.matched_readers());
     }
+    // Real time (the machine file's `realtime:`): memory is locked here, and each
+    // sample thread takes its CPUs and priority before its first sample.
+    std::vector<std::string> axis_names;
+    for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
+    Realtime realtime(machine.realtime, axis_names);
+    if (!realtime.ok()) return 1;
     for (auto& loop : loops)
-      loop->thread = std::thread(axis_loop, std::ref(*loop), std::ref(state_writer), std::ref(diagnostics_writer),
-                                 std::cref(stopping));
+      loop->thread = std::thread([&realtime, &state_writer, &diagnostics_writer, &stopping, l = loop.get()] {
+        realtime.enter_sample_thread(l->setup.config.name);
+        axis_loop(*l, state_writer, diagnostics_writer, stopping);
+      });
 
     // systemd: ready only once every axis publishes; the watchdog is petted only
     // while every sample loop keeps making progress.

@@ -1,6 +1,7 @@
 #include "config/loader.hpp"
 
 #include <fcntl.h>
+#include <sched.h>
 #include <sys/stat.h>
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
@@ -909,6 +910,11 @@ class MachineLoader {
         }
       }
     }
+    read_axes(root, cfg);
+    read_realtime(root.map("realtime"), cfg);  // after the axes: it may name them
+  }
+
+  void read_axes(Map& root, MachineConfig& cfg) {
     const Value axes = root.required("axes");
     if (!axes.present()) return;
     if (!axes.is_sequence() || axes.size() == 0) {
@@ -926,6 +932,78 @@ class MachineLoader {
       check_unique(a, cfg, i);
     }
   }
+
+  // ---- realtime section ----
+  /// `realtime: {sample_thread_priority, cpu_affinity, lock_memory, required}`.
+  /// The CPUs must exist on the machine that loads the file: a machine file
+  /// describes the machine it runs on, and `check` there reports a wrong index.
+  static void read_realtime(Map rt, MachineConfig& cfg) {
+    RealtimeConfig& c = cfg.realtime;
+    rt.get("sample_thread_priority", c.sample_thread_priority, Check<int>([](const int& p) {
+             return (p >= 0 && p <= 99) ? std::string()
+                                        : "must be in [0, 99] (SCHED_FIFO 1..99; 0 = normal scheduling), got " +
+                                              std::to_string(p);
+           }));
+    rt.get("lock_memory", c.lock_memory);
+    rt.get("required", c.required);
+    const Value aff = rt.value("cpu_affinity");
+    if (!aff.present() || aff.is_null()) return;
+    if (aff.is_sequence()) {
+      read_cpu_list(aff, c.cpu_affinity);
+      return;
+    }
+    if (!aff.is_map()) {
+      aff.error("expected a list of CPU indices for every sample thread, e.g. [2, 3], or one list per axis, e.g. "
+                "{x: [1], y: [2]}; got " + aff.describe());
+      return;
+    }
+    Map per_axis = aff.as_map();  // keys other than the axes' names are reported as unknown
+    for (const auto& axis : cfg.axes) {
+      if (axis.name.empty()) continue;
+      const Value v = per_axis.value(axis.name);
+      if (!v.present()) continue;
+      std::vector<int> cpus;
+      if (!v.is_sequence()) {
+        v.error("expected a list of CPU indices, e.g. [1], got " + v.describe());
+        continue;
+      }
+      if (read_cpu_list(v, cpus)) c.axis_cpu_affinity.emplace_back(axis.name, std::move(cpus));
+    }
+  }
+
+  static bool read_cpu_list(const Value& list, std::vector<int>& out) {
+    if (list.size() == 0) {
+      list.error("must list at least one CPU (leave cpu_affinity out for no pinning)");
+      return false;
+    }
+    const long configured = sysconf(_SC_NPROCESSORS_CONF);
+    const int cpus = configured > 0 ? static_cast<int>(std::min<long>(configured, CPU_SETSIZE)) : CPU_SETSIZE;
+    bool ok = true;
+    std::vector<int> got;
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      const Value item = list.at(i);
+      int cpu = -1;
+      if (!item.as(cpu, schema::in_range(0, CPU_SETSIZE - 1))) {
+        ok = false;
+        continue;
+      }
+      if (cpu >= cpus) {
+        item.error("CPU " + std::to_string(cpu) + " does not exist on this machine (it has CPUs 0-" +
+                   std::to_string(cpus - 1) + ")");
+        ok = false;
+        continue;
+      }
+      if (std::find(got.begin(), got.end(), cpu) != got.end()) {
+        item.error("CPU " + std::to_string(cpu) + " is listed twice");
+        ok = false;
+        continue;
+      }
+      got.push_back(cpu);
+    }
+    if (ok) out = std::move(got);
+    return ok;
+  }
+  // ---- end realtime section ----
 
   void check_unique(Map& a, const MachineConfig& cfg, std::size_t i) {
     const AxisConfig& axis = cfg.axes[i];

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/motor.hpp"
@@ -68,10 +69,36 @@ struct DdsConfig {
   std::vector<std::string> statistics;
 };
 
+/// `realtime:` in the machine file: how the per-axis sample threads are scheduled
+/// and whether the process' memory is locked. All off by default.
+struct RealtimeConfig {
+  int sample_thread_priority = 0;  ///< SCHED_FIFO priority 1..99 of every sample thread; 0 = normal scheduling
+  /// CPUs every sample thread may run on (`cpu_affinity: [2, 3]`); empty = not pinned.
+  std::vector<int> cpu_affinity;
+  /// Per-axis CPUs (`cpu_affinity: {x: [1], y: [2]}`), by axis name; an axis not
+  /// named here is not pinned. Used instead of cpu_affinity when not empty.
+  std::vector<std::pair<std::string, std::vector<int>>> axis_cpu_affinity;
+  bool lock_memory = false;  ///< mlockall(MCL_CURRENT | MCL_FUTURE) before the sample threads start
+  /// false: a setting the process has no permission for is logged as a warning and
+  /// the run goes on without it; true: `run` exits with 1 instead.
+  bool required = false;
+
+  /// The CPUs of one axis' sample thread; empty = not pinned.
+  const std::vector<int>& cpus_for(const std::string& axis) const {
+    static const std::vector<int> none;
+    if (axis_cpu_affinity.empty()) return cpu_affinity;
+    for (const auto& [name, cpus] : axis_cpu_affinity)
+      if (name == axis) return cpus;
+    return none;
+  }
+  bool any() const { return sample_thread_priority > 0 || !cpu_affinity.empty() || !axis_cpu_affinity.empty() || lock_memory; }
+};
+
 struct MachineConfig {
   std::string name = "machine";
   std::string source;  ///< file it came from (or "<embedded>/...")
   DdsConfig dds;
+  RealtimeConfig realtime;
   std::vector<AxisConfig> axes;
 };
 

@@ -1,0 +1,47 @@
+// Real-time settings of `run`, from the machine file's `realtime:` section:
+// memory locked (mlockall) once for the process, and SCHED_FIFO priority and CPU
+// affinity for each per-axis sample thread.
+//
+// Permissions: SCHED_FIFO needs CAP_SYS_NICE or RLIMIT_RTPRIO >= the priority;
+// locking all memory needs CAP_IPC_LOCK or an RLIMIT_MEMLOCK above the process'
+// size. The systemd unit grants both. Without them, each setting that cannot be
+// applied is logged once as a warning naming it and the run goes on without it,
+// unless `realtime.required: true`, which makes `run` fail before any sample
+// thread starts.
+#pragma once
+
+#include <atomic>
+#include <string>
+#include <vector>
+
+#include "config/machine_config.hpp"
+
+namespace ve::app {
+
+class Realtime {
+ public:
+  /// Locks memory (if asked) and checks, on a short-lived probe thread per axis,
+  /// that every sample thread's priority and affinity can be applied; logs one
+  /// warning per setting that cannot.
+  Realtime(const config::RealtimeConfig& config, const std::vector<std::string>& axes);
+
+  /// false when `required` is set and some setting cannot be applied (already logged).
+  bool ok() const { return ok_; }
+
+  /// Called first thing in an axis' sample thread: names the thread "ve-AXIS"
+  /// (seen in /proc/PID/task/*/comm, ps -L, top -H) and applies its affinity and
+  /// priority. Settings the probe found impossible are not tried again.
+  void enter_sample_thread(const std::string& axis);
+
+ private:
+  config::RealtimeConfig config_;
+  bool ok_ = true;
+  bool priority_usable_ = true;
+  std::vector<std::string> affinity_unusable_;  ///< axes whose CPUs cannot be used
+  std::atomic<bool> late_warning_{false};
+};
+
+/// "0-2,5": a CPU list in the kernel's Cpus_allowed_list form.
+std::string format_cpu_list(const std::vector<int>& cpus);
+
+}  // namespace ve::app

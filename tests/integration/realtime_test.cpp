@@ -1,0 +1,276 @@
+// `run` applies the machine file's `realtime:` section to its sample threads:
+// CPU affinity (read back, without privileges, from /proc/PID/task/*/status
+// Cpus_allowed_list of the thread named "ve-AXIS"), SCHED_FIFO priority when
+// permitted, and one clear warning per setting when it is not, after which the
+// run goes on; with `required: true` it fails instead.
+#include <gtest/gtest.h>
+
+#include <fcntl.h>
+#include <sched.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "process.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+
+constexpr int kDomain = 76;
+constexpr int kCapIpcLock = 14;
+constexpr int kCapSysNice = 23;
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+/// Value of a "Key:\tvalue" line of a /proc status file.
+std::string status_field(const std::string& status_path, const std::string& key) {
+  std::istringstream in(read_file(status_path));
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind(key + ":", 0) == 0) {
+      std::string v = line.substr(key.size() + 1);
+      v.erase(0, v.find_first_not_of(" \t"));
+      return v;
+    }
+  return {};
+}
+
+bool has_capability(const std::string& status_path, int cap) {
+  const std::string eff = status_field(status_path, "CapEff");
+  return !eff.empty() && ((std::stoull(eff, nullptr, 16) >> cap) & 1ULL) != 0;
+}
+
+std::string cpu_list(const cpu_set_t& set) {
+  std::string s;
+  for (int i = 0; i < CPU_SETSIZE;) {
+    if (!CPU_ISSET(i, &set)) {
+      ++i;
+      continue;
+    }
+    int j = i;
+    while (j + 1 < CPU_SETSIZE && CPU_ISSET(j + 1, &set)) ++j;
+    s += (s.empty() ? "" : ",") + std::to_string(i) + (j > i ? "-" + std::to_string(j) : "");
+    i = j + 1;
+  }
+  return s;
+}
+
+/// The process' threads by name: task directory of the first one called `comm`.
+std::string find_task(pid_t pid, const std::string& comm) {
+  std::error_code ec;
+  for (const auto& t : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    std::string c = read_file(t.path().string() + "/comm");
+    while (!c.empty() && (c.back() == '\n')) c.pop_back();
+    if (c == comm) return t.path().string();
+  }
+  return {};
+}
+
+/// Scheduling policy and RT priority of a task (proc(5) stat fields 41 and 40).
+void task_sched(const std::string& task, int& policy, int& rt_priority) {
+  const std::string stat = read_file(task + "/stat");
+  std::istringstream in(stat.substr(stat.rfind(')') + 2));
+  std::string f;
+  policy = rt_priority = -1;
+  for (int i = 3; i <= 41 && (in >> f); ++i) {
+    if (i == 40) rt_priority = std::stoi(f);
+    if (i == 41) policy = std::stoi(f);
+  }
+}
+
+/// `virtual-encoder` without the real-time permissions: CAP_SYS_NICE and CAP_IPC_LOCK
+/// dropped (bounding and ambient sets), RLIMIT_RTPRIO 0 and RLIMIT_MEMLOCK 64 KiB.
+class UnprivilegedChild {
+ public:
+  UnprivilegedChild(const std::vector<std::string>& args, const std::string& log_path) : log_path_(log_path) {
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    pid_ = fork();
+    if (pid_ == 0) {
+      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (fd >= 0) {
+        dup2(fd, STDOUT_FILENO);
+        dup2(fd, STDERR_FILENO);
+      }
+      for (const int cap : {kCapSysNice, kCapIpcLock}) {
+        prctl(PR_CAP_AMBIENT, PR_CAP_AMBIENT_LOWER, cap, 0, 0);
+        prctl(PR_CAPBSET_DROP, cap, 0, 0, 0);
+      }
+      rlimit rt{0, 0};
+      setrlimit(RLIMIT_RTPRIO, &rt);
+      rlimit mem{64 * 1024, 64 * 1024};
+      setrlimit(RLIMIT_MEMLOCK, &mem);
+      execv(argv[0], argv.data());
+      _exit(127);
+    }
+  }
+  ~UnprivilegedChild() {
+    if (pid_ > 0 && !exited_) {
+      kill(pid_, SIGKILL);
+      int st;
+      waitpid(pid_, &st, 0);
+    }
+  }
+  pid_t pid() const { return pid_; }
+  int wait_exit(std::chrono::milliseconds timeout) {
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < end) {
+      int st = 0;
+      if (waitpid(pid_, &st, WNOHANG) == pid_) {
+        exited_ = true;
+        return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+      }
+      std::this_thread::sleep_for(20ms);
+    }
+    return -1;
+  }
+  std::string log() const { return read_file(log_path_); }
+
+ private:
+  pid_t pid_ = -1;
+  bool exited_ = false;
+  std::string log_path_;
+};
+
+std::size_t count(const std::string& text, const std::string& what) {
+  std::size_t n = 0;
+  for (auto p = text.find(what); p != std::string::npos; p = text.find(what, p + 1)) ++n;
+  return n;
+}
+
+/// A two-axis standstill machine whose file starts with `realtime`.
+std::string write_machine(const std::string& name, const std::string& realtime) {
+  const std::string motor = std::string(VE_SOURCE_DIR) + "/config/motors/sim-12mm.yaml";
+  const std::string path = "/tmp/ve_it_realtime_" + name + "_" + std::to_string(getpid()) + ".yaml";
+  std::ofstream(path) << "machine: realtime-test\n"
+                      << realtime << "axes:\n"
+                      << "  - name: x\n    motor: " << motor
+                      << "\n    driver: {type: sim, profile: {type: standstill, start_m: 0.3}}\n"
+                      << "    homing: {position_m: 0.3}\n"
+                      << "  - name: y\n    motor: " << motor
+                      << "\n    driver: {type: sim, profile: {type: standstill, start_m: 0.6}}\n"
+                      << "    homing: {position_m: 0.6}\n";
+  return path;
+}
+
+std::vector<std::string> run_args(const std::string& machine) {
+  return {VE_BINARY, "run", "--config", machine, "--domain", std::to_string(kDomain), "--duration", "30"};
+}
+
+TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
+  cpu_set_t allowed;
+  CPU_ZERO(&allowed);
+  ASSERT_EQ(sched_getaffinity(0, sizeof allowed, &allowed), 0);
+  int last = -1;
+  for (int i = 0; i < CPU_SETSIZE; ++i)
+    if (CPU_ISSET(i, &allowed)) last = i;
+  ASSERT_GE(last, 0);
+  const std::string inherited = cpu_list(allowed);
+  if (CPU_COUNT(&allowed) < 2)
+    std::printf("[ note     ] only CPU %d is allowed here: pinned and unpinned threads look the same\n", last);
+
+  // x pinned to the last allowed CPU at the lowest FIFO priority; y not named: not pinned.
+  const std::string machine = write_machine(
+      "pin", "realtime:\n  sample_thread_priority: 1\n  cpu_affinity: {x: [" + std::to_string(last) + "]}\n");
+  ve::test::ChildProcess run(run_args(machine), "/tmp/ve_it_realtime_pin.log");
+  ASSERT_TRUE(run.started());
+  std::string x_task, y_task;
+  ASSERT_TRUE(ve::test::wait_until(
+      [&] {
+        x_task = find_task(run.pid(), "ve-x");
+        y_task = find_task(run.pid(), "ve-y");
+        return !x_task.empty() && !y_task.empty() && run.log().find("realtime:") != std::string::npos;
+      },
+      30s))
+      << run.log();
+  std::this_thread::sleep_for(200ms);  // the thread applies its settings before its first sample
+  EXPECT_EQ(status_field(x_task + "/status", "Cpus_allowed_list"), std::to_string(last)) << run.log();
+  EXPECT_EQ(status_field(y_task + "/status", "Cpus_allowed_list"), inherited) << "an axis not named is not pinned";
+  const std::string status_path = "/proc/" + std::to_string(run.pid()) + "/status";
+  EXPECT_EQ(status_field(status_path, "Cpus_allowed_list"), inherited) << "the process' other threads are not pinned";
+
+  // The priority: applied when the process may (CAP_SYS_NICE or RLIMIT_RTPRIO >= 1), else one warning.
+  int policy = -1, prio = -1;
+  task_sched(x_task, policy, prio);
+  rlimit rt{};
+  getrlimit(RLIMIT_RTPRIO, &rt);
+  const bool may = has_capability(status_path, kCapSysNice) || rt.rlim_cur >= 1;
+  const std::string log = run.log();
+  if (may) {
+    EXPECT_EQ(policy, SCHED_FIFO) << log;
+    EXPECT_EQ(prio, 1);
+    int other_policy = -1, other_prio = -1;
+    task_sched("/proc/" + std::to_string(run.pid()) + "/task/" + std::to_string(run.pid()), other_policy, other_prio);
+    EXPECT_EQ(other_policy, SCHED_OTHER) << "only the sample threads run at FIFO priority";
+    EXPECT_NE(log.find("axis 'x': CPUs " + std::to_string(last) + " SCHED_FIFO 1"), std::string::npos) << log;
+  } else {
+    EXPECT_EQ(policy, SCHED_OTHER);
+    EXPECT_EQ(count(log, "realtime.sample_thread_priority: cannot run"), 1u) << log;
+  }
+  std::printf("[ figures  ] ve-x: CPUs %s, policy %d priority %d; ve-y: CPUs %s\n",
+              status_field(x_task + "/status", "Cpus_allowed_list").c_str(), policy, prio,
+              status_field(y_task + "/status", "Cpus_allowed_list").c_str());
+  run.signal(SIGTERM);
+  EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
+}
+
+TEST(Realtime, WithoutPermissionWarnsOncePerSettingAndPublishes) {
+  const std::string machine =
+      write_machine("noperm", "realtime:\n  sample_thread_priority: 50\n  lock_memory: true\n");
+  UnprivilegedChild run(run_args(machine), "/tmp/ve_it_realtime_noperm.log");
+  ASSERT_GT(run.pid(), 0);
+  std::string x_task;
+  ASSERT_TRUE(ve::test::wait_until([&] { return !(x_task = find_task(run.pid(), "ve-x")).empty(); }, 30s)) << run.log();
+  const std::string status_path = "/proc/" + std::to_string(run.pid()) + "/status";
+  if (has_capability(status_path, kCapSysNice) || has_capability(status_path, kCapIpcLock))
+    GTEST_SKIP() << "cannot drop CAP_SYS_NICE / CAP_IPC_LOCK for the child here";
+  int policy = -1, prio = -1;
+  task_sched(x_task, policy, prio);
+  EXPECT_EQ(policy, SCHED_OTHER);
+  // It goes on: the status lines show samples (rate > 0) and it stops cleanly.
+  ASSERT_TRUE(ve::test::wait_until([&] { return run.log().find(" x=") != std::string::npos; }, 30s)) << run.log();
+  kill(run.pid(), SIGTERM);
+  EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
+  const std::string log = run.log();
+  EXPECT_EQ(count(log, "realtime.sample_thread_priority: cannot run the sample threads at SCHED_FIFO priority 50"), 1u)
+      << "one warning for two axes:\n" << log;
+  EXPECT_NE(log.find("CAP_SYS_NICE or RLIMIT_RTPRIO >= 50 (now 0"), std::string::npos) << log;
+  EXPECT_EQ(count(log, "realtime.lock_memory: cannot lock the process' memory"), 1u) << log;
+  EXPECT_NE(log.find("going on without it"), std::string::npos) << log;
+  EXPECT_EQ(log.find("not starting"), std::string::npos) << log;
+  EXPECT_NE(log.find("published "), std::string::npos) << log;
+  EXPECT_EQ(log.find("published 0 samples"), std::string::npos) << log;
+}
+
+TEST(Realtime, RequiredSettingWithoutPermissionFailsTheRun) {
+  const std::string machine = write_machine("required", "realtime:\n  sample_thread_priority: 50\n  required: true\n");
+  UnprivilegedChild run(run_args(machine), "/tmp/ve_it_realtime_required.log");
+  ASSERT_GT(run.pid(), 0);
+  const int rc = run.wait_exit(30s);
+  const std::string log = run.log();
+  if (rc == -1 || log.find("SCHED_FIFO 50") != std::string::npos)
+    GTEST_SKIP() << "the child kept CAP_SYS_NICE here:\n" << log;
+  EXPECT_EQ(rc, 1) << log;
+  EXPECT_NE(log.find("realtime.sample_thread_priority: cannot run"), std::string::npos) << log;
+  EXPECT_NE(log.find("realtime.required is true: not starting"), std::string::npos) << log;
+  EXPECT_EQ(log.find(" x="), std::string::npos) << "no sample thread ran:\n" << log;
+}
+
+}  // namespace
