@@ -5,6 +5,13 @@
 
 namespace ve::core {
 
+namespace {
+/// The bias step test starts this long after the filter (re)starts with the
+/// accelerometer: before, its own start-up transient leans the Hall innovations
+/// one way [s].
+constexpr double kBiasStepSettleS = 0.1;
+}  // namespace
+
 FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const SensorModel& model)
     : ts_(ts_s), tuning_(tuning), model_(model) {
   const double t = ts_s;
@@ -57,6 +64,7 @@ FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const Sensor
   q_steady_(kAcc, kAcc) = ds * ds;
   q_steady_(kJerk, kJerk) = 0.0;
   hold_samples_ = std::max(1, static_cast<int>(std::lround(tuning.steady_hold_s / t)));
+  bias_step_settle_ = std::max(0, static_cast<int>(std::lround(kBiasStepSettleS / t)));
 
   const double d = model.hall_delay_s;
   h_hall_(kPos) = 1.0;
@@ -69,6 +77,7 @@ void FusionFilter::reset(double position_m, double position_var_m2, double accel
   x_.setZero();
   p_.setZero();
   clear_detectors();
+  hall_updates_ = 0;
   steady_ = false;
   q_ = accel_available_ ? q_accel_ : q_hall_only_;
   const double a0 = accel_valid ? (accel_reading_mps2 - model_.accel_bias_mps2) / model_.accel_scale : 0.0;
@@ -125,6 +134,7 @@ void FusionFilter::set_accelerometer_available(bool available) {
   accel_available_ = available;
   steady_ = false;
   clear_detectors();
+  hall_updates_ = 0;
   q_ = available ? q_accel_ : q_hall_only_;
   if (!available) {
     // Freeze the jerk at zero: without the accelerometer nothing observes it well.
@@ -248,6 +258,12 @@ double FusionFilter::scalar_update(const Row& h, double innovation, double r, do
 double FusionFilter::update_hall(double z_m, double r_m2, double gate_sigma, bool& applied) {
   const double nu_norm = scalar_update(h_hall_, z_m - h_hall_.dot(x_), r_m2, gate_sigma, applied);
   const double h = tuning_.accel_bias_step_cusum;
+  // While the filter settles after a (re)start its Hall innovations lean one way
+  // for a while (initial velocity, jerk and bias uncertain); that is not a bias step.
+  if (hall_updates_ < bias_step_settle_) {
+    ++hall_updates_;
+    return nu_norm;
+  }
   if (accel_available_ && h > 0.0) {
     // Hall innovations persistently of one sign: the accelerometer's reading moved
     // without the carriage (a bias step). Free the bias state to follow it.

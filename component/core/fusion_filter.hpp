@@ -98,6 +98,10 @@ class FusionFilter {
   Cusum acc_up_, acc_down_;
   Cusum hall_up_, hall_down_;
   std::uint64_t bias_steps_ = 0;
+  /// Hall updates since the filter (re)started with the accelerometer; the bias
+  /// step test waits until the start-up transient has settled.
+  int hall_updates_ = 0;
+  int bias_step_settle_ = 0;
   Mat q_steady_;  ///< process noise of the calm model
 
   double ts_;
