@@ -1,0 +1,565 @@
+// DDS Security with real processes over a real DDS stack: a test PKI from
+// deploy/security/make-test-pki.sh, `virtual-encoder run` with the encoder
+// identity's secure profiles (the machine file's dds.profiles_file), and in the
+// same run:
+//  - permitted: the monitor identity (`virtual-encoder monitor --csv` and a
+//    participant in this process) reads the state and starts a calibration;
+//  - unauthenticated: a participant without security reads nothing and its
+//    calibration command is never acted on;
+//  - authenticated but unpermitted: the intruder identity is admitted to the
+//    domain, but its access control refuses it any reader or writer on ve/*;
+//  - forged permissions: the intruder identity with a permissions document that
+//    grants it all of ve/*, signed by a CA of its own. Its own checks pass, so it
+//    has a state reader and a command writer; the encoder does not accept the
+//    permissions, so it reads nothing and its calibration command is never acted on.
+// "Nothing arrives" is asserted over generous windows in which the permitted
+// participants of the same run did receive.
+#include <gtest/gtest.h>
+
+#include <stdlib.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <utility>
+#include <vector>
+
+#include <fastdds/dds/domain/DomainParticipant.hpp>
+#include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/domain/DomainParticipantListener.hpp>
+#include <fastdds/dds/log/Log.hpp>
+#include <fastdds/dds/publisher/DataWriter.hpp>
+#include <fastdds/dds/publisher/DataWriterListener.hpp>
+#include <fastdds/dds/publisher/Publisher.hpp>
+#include <fastdds/dds/publisher/qos/DataWriterQos.hpp>
+#include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/DataReaderListener.hpp>
+#include <fastdds/dds/subscriber/SampleInfo.hpp>
+#include <fastdds/dds/subscriber/Subscriber.hpp>
+#include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
+#include <fastdds/dds/topic/TypeSupport.hpp>
+
+#include "VirtualEncoderPubSubTypes.h"
+#include "app/dds_io.hpp"
+#include "process.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+namespace fdds = eprosima::fastdds::dds;
+using eprosima::fastrtps::types::ReturnCode_t;
+using namespace std::chrono_literals;
+using ve::test::ChildProcess;
+using ve::test::wait_until;
+
+// Domains of these tests (the other integration tests use 71-92).
+constexpr int kReadDomain = 61;
+constexpr int kCalibrationDomain = 62;
+constexpr std::uint32_t kAxis = 7;
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    std::string tmpl = (fs::temp_directory_path() / "ve_security_XXXXXX").string();
+    path = mkdtemp(tmpl.data());
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+std::string read(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
+
+bool have_openssl() { return std::system("command -v openssl >/dev/null 2>&1") == 0; }
+
+std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
+
+/// The test PKI, made once for all tests of this file.
+class Pki {
+ public:
+  static Pki& get() {
+    static Pki pki;
+    return pki;
+  }
+  bool ok() const { return ok_; }
+  const std::string& error() const { return error_; }
+  fs::path dir() const { return dir_.path / "pki"; }
+  fs::path profiles(const std::string& id) const { return dir() / id / "dds-profiles-secure.xml"; }
+  /// A CA of the intruder's own ("rogue"), the governance signed by it, and a
+  /// permissions document for the intruder granting all of ve/*, signed by it.
+  fs::path rogue_dir() const { return dir_.path / "rogue"; }
+
+  /// The Fast DDS security properties of an identity, as in its profiles file.
+  /// `forged`: the intruder's permissions CA, governance and permissions are the rogue ones.
+  std::vector<std::pair<std::string, std::string>> properties(const std::string& id, bool forged = false) const {
+    const std::string d = dir().string(), r = rogue_dir().string();
+    return {
+        {"dds.sec.auth.plugin", "builtin.PKI-DH"},
+        {"dds.sec.auth.builtin.PKI-DH.identity_ca", "file://" + d + "/ca/ca.pem"},
+        {"dds.sec.auth.builtin.PKI-DH.identity_certificate", "file://" + d + "/" + id + "/cert.pem"},
+        {"dds.sec.auth.builtin.PKI-DH.private_key", "file://" + d + "/" + id + "/key.pem"},
+        {"dds.sec.access.plugin", "builtin.Access-Permissions"},
+        {"dds.sec.access.builtin.Access-Permissions.permissions_ca",
+         "file://" + (forged ? r + "/ca.pem" : d + "/ca/ca.pem")},
+        {"dds.sec.access.builtin.Access-Permissions.governance",
+         "file://" + (forged ? r + "/governance.p7s" : d + "/governance.p7s")},
+        {"dds.sec.access.builtin.Access-Permissions.permissions",
+         "file://" + (forged ? r + "/permissions.p7s" : d + "/" + id + "/permissions.p7s")},
+        {"dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC"},
+    };
+  }
+
+ private:
+  Pki() {
+    if (!have_openssl()) return;
+    const fs::path script = fs::path(VE_SOURCE_DIR) / "deploy" / "security" / "make-test-pki.sh";
+    const fs::path log = dir_.path / "make-test-pki.log";
+    const std::string cmd = "bash " + quoted(script) + " " + quoted(dir()) + " >" + quoted(log) + " 2>&1";
+    if (std::system(cmd.c_str()) != 0) {
+      error_ = "make-test-pki.sh failed:\n" + read(log);
+      return;
+    }
+    // A second run changes no file and says nothing.
+    const auto files = [this] {
+      std::map<std::string, std::pair<fs::file_time_type, std::string>> m;
+      for (const auto& e : fs::recursive_directory_iterator(dir()))
+        if (e.is_regular_file()) m[e.path().string()] = {e.last_write_time(), read(e.path())};
+      return m;
+    };
+    const auto before = files();
+    if (std::system(cmd.c_str()) != 0 || !read(log).empty() || files() != before) {
+      error_ = "make-test-pki.sh is not idempotent and quiet:\n" + read(log);
+      return;
+    }
+    // The properties this test gives its participants are those of the generated profiles.
+    for (const std::string id : {"encoder", "monitor", "intruder"}) {
+      const std::string xml = read(profiles(id));
+      for (const auto& [k, v] : properties(id))
+        if (xml.find("<name>" + k + "</name>") == std::string::npos ||
+            xml.find("<value>" + v + "</value>") == std::string::npos) {
+          error_ = profiles(id).string() + " lacks " + k + " = " + v;
+          return;
+        }
+    }
+    // The rogue CA, and with it the governance and the intruder's forged permissions.
+    const fs::path r = rogue_dir();
+    fs::create_directories(r);
+    std::string permissions = read(dir() / "intruder" / "permissions.xml");
+    for (std::size_t at; (at = permissions.find("<topic>lab/chat</topic>")) != std::string::npos;)
+      permissions.replace(at, 23, "<topic>ve/*</topic>");
+    write(r / "permissions.xml", permissions);
+    const std::string ca = " -signer " + quoted(r / "ca.pem") + " -inkey " + quoted(r / "ca.key");
+    const std::string steps =
+        "set -e; cd " + quoted(r) +
+        "; openssl genpkey -algorithm EC -pkeyopt ec_paramgen_curve:P-256 -out ca.key"
+        "; openssl req -x509 -new -sha256 -days 30 -key ca.key -out ca.pem -subj '/O=Rogue/CN=Rogue CA'"
+        " -addext 'basicConstraints=critical,CA:TRUE' -addext 'keyUsage=critical,keyCertSign,digitalSignature'"
+        "; openssl smime -sign -text -md sha256 -in " + quoted(dir() / "governance.xml") +
+        " -out governance.p7s" + ca + "; openssl smime -sign -text -md sha256 -in permissions.xml -out permissions.p7s" +
+        ca;
+    const std::string cmd2 = "(" + steps + ") >" + quoted(log) + " 2>&1";
+    if (permissions.find("<topic>ve/*</topic>") == std::string::npos || std::system(cmd2.c_str()) != 0) {
+      error_ = "cannot make the forged permissions:\n" + read(log);
+      return;
+    }
+    ok_ = true;
+  }
+  TempDir dir_;
+  bool ok_ = false;
+  std::string error_;
+};
+
+#define REQUIRE_PKI()                                                      \
+  do {                                                                     \
+    if (!have_openssl()) GTEST_SKIP() << "openssl not found";              \
+    ASSERT_TRUE(Pki::get().ok()) << Pki::get().error();                    \
+  } while (0)
+
+/// A machine with one simulated axis (a short copy of the sim-12mm motor, so a
+/// calibration sweep is short) using the given profiles file.
+fs::path make_machine(const fs::path& dir, const std::string& name, const fs::path& profiles) {
+  std::string m = read(fs::path(VE_SOURCE_DIR) / "config" / "motors" / "sim-12mm.yaml");
+  m.replace(m.find("motor: sim-12mm"), 15, "motor: short-12");
+  m.replace(m.find("travel_m: 1.0"), 13, "travel_m: 0.1");
+  write(dir / "short.yaml", m);
+  const fs::path machine = dir / (name + ".yaml");
+  write(machine,
+        "machine: secure-" + name +
+            "\n"
+            "dds:\n"
+            "  profiles_file: " +
+            profiles.string() +
+            "\n"
+            "axes:\n"
+            "  - name: x\n"
+            "    id: 7\n"
+            "    motor: short.yaml\n"
+            "    driver:\n"
+            "      type: sim\n"
+            "      profile: {type: shuttle, start_m: 0.05, min_m: 0.01, max_m: 0.09, max_velocity_mps: 0.05,\n"
+            "                max_acceleration_mps2: 1.0}\n"
+            "    homing: {mode: startup_position, position_m: 0.05}\n");
+  return machine;
+}
+
+/// A participant of this process, with or without security (Fast DDS' built-in
+/// transports), with the ve/* entities the test asks for, their QoS compatible with
+/// the product's (state: best effort; commands: reliable, volatile; status: reliable,
+/// transient local).
+class Peer {
+ public:
+  using Properties = std::vector<std::pair<std::string, std::string>>;
+
+  Peer(int domain, const std::string& name, const Properties& properties) {
+    auto* factory = fdds::DomainParticipantFactory::get_instance();
+    fdds::DomainParticipantQos q = fdds::PARTICIPANT_QOS_DEFAULT;
+    q.name(name);
+    for (const auto& [k, v] : properties) q.properties().properties().emplace_back(k, v);
+    participant_ = factory->create_participant(static_cast<fdds::DomainId_t>(domain), q, &participant_listener_,
+                                               fdds::StatusMask::none());
+    if (participant_ == nullptr) return;
+    fdds::TypeSupport state(new ve::dds::EncoderStatePubSubType());
+    fdds::TypeSupport command(new ve::dds::CalibrationCommandPubSubType());
+    fdds::TypeSupport status(new ve::dds::CalibrationStatusPubSubType());
+    for (auto* t : {&state, &command, &status})
+      if (t->register_type(participant_) != ReturnCode_t::RETCODE_OK) return;
+    state_topic_ = participant_->create_topic(ve::app::kStateTopic, state.get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+    command_topic_ = participant_->create_topic(ve::app::kCalibrationCommandTopic, command.get_type_name(),
+                                                fdds::TOPIC_QOS_DEFAULT);
+    status_topic_ = participant_->create_topic(ve::app::kCalibrationStatusTopic, status.get_type_name(),
+                                               fdds::TOPIC_QOS_DEFAULT);
+    publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
+    subscriber_ = participant_->create_subscriber(fdds::SUBSCRIBER_QOS_DEFAULT);
+  }
+  ~Peer() {
+    if (participant_ == nullptr) return;
+    participant_->set_listener(nullptr);
+    for (auto* r : {state_reader_, status_reader_})
+      if (r != nullptr) r->set_listener(nullptr);
+    if (command_writer_ != nullptr) command_writer_->set_listener(nullptr);
+    participant_->delete_contained_entities();
+    fdds::DomainParticipantFactory::get_instance()->delete_participant(participant_);
+  }
+  Peer(const Peer&) = delete;
+  Peer& operator=(const Peer&) = delete;
+
+  bool ok() const {
+    return participant_ != nullptr && state_topic_ != nullptr && command_topic_ != nullptr &&
+           status_topic_ != nullptr && publisher_ != nullptr && subscriber_ != nullptr;
+  }
+
+  /// False when the participant's access control refuses the reader.
+  bool read_state() {
+    fdds::DataReaderQos q = fdds::DATAREADER_QOS_DEFAULT;
+    q.reliability().kind = fdds::BEST_EFFORT_RELIABILITY_QOS;
+    q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+    q.history().depth = 64;
+    state_reader_ = subscriber_->create_datareader(
+        state_topic_, q, &listener_, fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+    return state_reader_ != nullptr;
+  }
+  bool write_commands() {
+    fdds::DataWriterQos q = fdds::DATAWRITER_QOS_DEFAULT;
+    q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+    q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
+    q.history().kind = fdds::KEEP_ALL_HISTORY_QOS;
+    command_writer_ =
+        publisher_->create_datawriter(command_topic_, q, &writer_listener_, fdds::StatusMask::publication_matched());
+    return command_writer_ != nullptr;
+  }
+  bool read_status() {
+    fdds::DataReaderQos q = fdds::DATAREADER_QOS_DEFAULT;
+    q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+    q.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
+    q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
+    q.history().depth = 1;
+    status_reader_ = subscriber_->create_datareader(
+        status_topic_, q, &listener_, fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+    return status_reader_ != nullptr;
+  }
+
+  /// A reader of another topic (the same type), for grants outside ve/*.
+  bool read_topic(const std::string& name) {
+    auto* topic = participant_->create_topic(name, state_topic_->get_type_name(), fdds::TOPIC_QOS_DEFAULT);
+    return topic != nullptr && subscriber_->create_datareader(topic, fdds::DATAREADER_QOS_DEFAULT) != nullptr;
+  }
+
+  /// Participants outside `local` that authenticated this one and accepted its permissions.
+  int admitted_by_others(std::initializer_list<Peer*> local) {
+    std::lock_guard<std::mutex> lock(participant_listener_.mutex);
+    int n = 0;
+    for (const auto& prefix : participant_listener_.authorized) {
+      bool is_local = false;
+      for (const auto* p : local) is_local = is_local || p->participant_->guid().guidPrefix == prefix;
+      if (!is_local) ++n;
+    }
+    return n;
+  }
+
+  bool send(std::uint32_t command, std::uint64_t request, double sweep_speed = 0.0) {
+    ve::dds::CalibrationCommand c;
+    c.axis_id(kAxis);
+    c.command(command);
+    c.request_id(request);
+    c.sweep_speed_mps(sweep_speed);
+    c.requested_by(participant_->get_qos().name().to_string());
+    return command_writer_->write(&c);
+  }
+
+  std::uint64_t states_received() const { return listener_.states.load(); }
+  int state_writers_matched() const { return listener_.state_matched.load(); }
+  int status_writers_matched() const { return listener_.status_matched.load(); }
+  int command_readers_matched() const { return writer_listener_.matched.load(); }
+  std::vector<ve::dds::CalibrationStatus> statuses() {
+    std::lock_guard<std::mutex> lock(listener_.mutex);
+    return listener_.statuses;
+  }
+  bool any_status_of(std::uint64_t request) {
+    for (const auto& s : statuses())
+      if (s.request_id() == request) return true;
+    return false;
+  }
+  bool status_of(std::uint64_t request, std::uint32_t state, ve::dds::CalibrationStatus& out) {
+    for (const auto& s : statuses())
+      if (s.request_id() == request && s.state() == state) {
+        out = s;
+        return true;
+      }
+    return false;
+  }
+
+ private:
+  struct ParticipantListener : fdds::DomainParticipantListener {
+    void onParticipantAuthentication(fdds::DomainParticipant*,
+                                     eprosima::fastrtps::rtps::ParticipantAuthenticationInfo&& info) override {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (info.status == eprosima::fastrtps::rtps::ParticipantAuthenticationInfo::AUTHORIZED_PARTICIPANT)
+        authorized.push_back(info.guid.guidPrefix);
+    }
+    std::mutex mutex;
+    std::vector<eprosima::fastrtps::rtps::GuidPrefix_t> authorized;
+  };
+  struct ReaderListener : fdds::DataReaderListener {
+    void on_data_available(fdds::DataReader* reader) override {
+      fdds::SampleInfo info;
+      if (reader->get_topicdescription()->get_name() == ve::app::kStateTopic) {
+        ve::dds::EncoderState s;
+        while (reader->take_next_sample(&s, &info) == ReturnCode_t::RETCODE_OK)
+          if (info.valid_data) states.fetch_add(1);
+        return;
+      }
+      ve::dds::CalibrationStatus s;
+      while (reader->take_next_sample(&s, &info) == ReturnCode_t::RETCODE_OK) {
+        if (!info.valid_data) continue;
+        std::lock_guard<std::mutex> lock(mutex);
+        statuses.push_back(s);
+      }
+    }
+    void on_subscription_matched(fdds::DataReader* reader, const fdds::SubscriptionMatchedStatus& s) override {
+      if (reader->get_topicdescription()->get_name() == ve::app::kStateTopic)
+        state_matched.store(s.current_count);
+      else
+        status_matched.store(s.current_count);
+    }
+    std::atomic<std::uint64_t> states{0};
+    std::atomic<int> state_matched{0}, status_matched{0};
+    std::mutex mutex;
+    std::vector<ve::dds::CalibrationStatus> statuses;
+  };
+  struct WriterListener : fdds::DataWriterListener {
+    void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
+      matched.store(s.current_count);
+    }
+    std::atomic<int> matched{0};
+  };
+
+  fdds::DomainParticipant* participant_ = nullptr;
+  fdds::Topic* state_topic_ = nullptr;
+  fdds::Topic* command_topic_ = nullptr;
+  fdds::Topic* status_topic_ = nullptr;
+  fdds::Publisher* publisher_ = nullptr;
+  fdds::Subscriber* subscriber_ = nullptr;
+  fdds::DataReader* state_reader_ = nullptr;
+  fdds::DataReader* status_reader_ = nullptr;
+  fdds::DataWriter* command_writer_ = nullptr;
+  ParticipantListener participant_listener_;
+  ReaderListener listener_;
+  WriterListener writer_listener_;
+};
+
+/// CSV rows (one per received sample) in the output of `monitor --csv`.
+std::size_t csv_rows(const std::string& log) {
+  std::size_t n = 0;
+  std::istringstream in(log);
+  for (std::string line; std::getline(in, line);)
+    if (line.rfind(std::to_string(kAxis) + ",", 0) == 0 && std::count(line.begin(), line.end(), ',') == 13) ++n;
+  return n;
+}
+
+std::vector<std::string> run_args(const fs::path& machine, int domain) {
+  return {VE_BINARY, "run", "--config", machine.string(), "--domain", std::to_string(domain), "--duration", "110"};
+}
+
+TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
+  REQUIRE_PKI();
+  const Pki& pki = Pki::get();
+  TempDir dir;
+  const fs::path encoder_machine = make_machine(dir.path, "encoder", pki.profiles("encoder"));
+  const fs::path monitor_machine = make_machine(dir.path, "monitor", pki.profiles("monitor"));
+  const int domain = kReadDomain;
+
+  // The denied participants exist before the encoder: they have every chance to see the state.
+  Peer open(domain, "unauthenticated", {});
+  ASSERT_TRUE(open.ok());
+  ASSERT_TRUE(open.read_state());
+  Peer intruder(domain, "intruder", pki.properties("intruder"));
+  ASSERT_TRUE(intruder.ok()) << "the intruder has a valid identity and permissions: its participant is created";
+  // Its access control refuses a reader of ve/encoder_state, and grants what it was granted.
+  EXPECT_FALSE(intruder.read_state());
+  EXPECT_TRUE(intruder.read_topic("lab/chat"));
+  Peer forged(domain, "intruder-forged", pki.properties("intruder", true));
+  ASSERT_TRUE(forged.ok());
+  ASSERT_TRUE(forged.read_state()) << "its forged permissions grant it ve/* locally";
+  // The positive control of the same run.
+  Peer monitor(domain, "monitor", pki.properties("monitor"));
+  ASSERT_TRUE(monitor.ok());
+  ASSERT_TRUE(monitor.read_state());
+  const auto local = {&open, &intruder, &forged, &monitor};
+
+  ChildProcess encoder(run_args(encoder_machine, domain), (dir.path / "run.log").string());
+  ASSERT_TRUE(encoder.started());
+  ASSERT_TRUE(wait_until([&] { return monitor.states_received() > 4000; }, 30s))
+      << "received " << monitor.states_received() << ", matched " << monitor.state_writers_matched() << "\n"
+      << encoder.log();
+  // The product's monitor with the monitor identity's profiles, as deployed.
+  ChildProcess csv({VE_BINARY, "monitor", "--config", monitor_machine.string(), "--domain", std::to_string(domain),
+                    "--csv", "--duration", "80"},
+                   (dir.path / "monitor.log").string());
+  ASSERT_TRUE(csv.started());
+  ASSERT_TRUE(wait_until([&] { return csv_rows(csv.log()) > 4000; }, 60s)) << csv.log() << "\n" << encoder.log();
+  // A generous window more for the denied ones, while the permitted one keeps receiving.
+  const std::uint64_t monitor_before = monitor.states_received();
+  std::this_thread::sleep_for(5s);
+  EXPECT_GT(monitor.states_received(), monitor_before + 4000);
+
+  std::printf("[ figures  ] state samples received: monitor %llu, `monitor --csv` %zu; unauthenticated %llu, "
+              "intruder with forged permissions %llu; the intruder was admitted by %d, the forged one by %d "
+              "participant(s) of other processes\n",
+              static_cast<unsigned long long>(monitor.states_received()), csv_rows(csv.log()),
+              static_cast<unsigned long long>(open.states_received()),
+              static_cast<unsigned long long>(forged.states_received()), intruder.admitted_by_others(local),
+              forged.admitted_by_others(local));
+  EXPECT_GE(monitor.state_writers_matched(), 1);  // the encoder's state writers
+  EXPECT_EQ(open.states_received(), 0u);
+  EXPECT_EQ(open.state_writers_matched(), 0);
+  EXPECT_EQ(forged.states_received(), 0u);
+  EXPECT_EQ(forged.state_writers_matched(), 0);
+  // Authenticated and admitted to the domain by the encoder (and the CSV monitor),
+  // unlike the one with forged permissions.
+  EXPECT_GE(intruder.admitted_by_others(local), 1);
+  EXPECT_EQ(forged.admitted_by_others(local), 0);
+  EXPECT_GE(monitor.admitted_by_others(local), 1);
+
+  // The encoder ran with the secure profiles.
+  EXPECT_NE(encoder.log().find("XML profiles from " + pki.profiles("encoder").string()), std::string::npos)
+      << encoder.log();
+  csv.signal(SIGINT);
+  EXPECT_EQ(csv.wait_exit(20s), 0) << csv.log();
+  encoder.signal(SIGINT);
+  EXPECT_EQ(encoder.wait_exit(20s), 0) << encoder.log();
+}
+
+TEST(DdsSecurity, OnlyThePermittedMonitorStartsACalibration) {
+  REQUIRE_PKI();
+  const Pki& pki = Pki::get();
+  TempDir dir;
+  const fs::path encoder_machine = make_machine(dir.path, "encoder", pki.profiles("encoder"));
+  const int domain = kCalibrationDomain;
+  constexpr std::uint64_t kOpenRequest = 601, kForgedRequest = 602, kMonitorRequest = 603, kAbortRequest = 604;
+
+  ChildProcess encoder(run_args(encoder_machine, domain), (dir.path / "run.log").string());
+  ASSERT_TRUE(encoder.started());
+
+  Peer open(domain, "unauthenticated", {});
+  ASSERT_TRUE(open.ok());
+  ASSERT_TRUE(open.write_commands());
+  ASSERT_TRUE(open.read_status());
+  Peer intruder(domain, "intruder", pki.properties("intruder"));
+  ASSERT_TRUE(intruder.ok());
+  // Its access control refuses a writer of ve/calibration_command and a reader of the status.
+  EXPECT_FALSE(intruder.write_commands());
+  EXPECT_FALSE(intruder.read_status());
+  Peer forged(domain, "intruder-forged", pki.properties("intruder", true));
+  ASSERT_TRUE(forged.ok());
+  ASSERT_TRUE(forged.write_commands()) << "its forged permissions grant it ve/* locally";
+  ASSERT_TRUE(forged.read_status());
+  Peer monitor(domain, "monitor", pki.properties("monitor"));
+  ASSERT_TRUE(monitor.ok());
+  ASSERT_TRUE(monitor.write_commands());
+  ASSERT_TRUE(monitor.read_status());
+  const auto local = {&open, &intruder, &forged, &monitor};
+
+  // The permitted monitor is matched both ways and the encoder admitted the
+  // intruder's participant: discovery and authentication are done.
+  ASSERT_TRUE(wait_until(
+      [&] {
+        return monitor.command_readers_matched() > 0 && monitor.status_writers_matched() > 0 &&
+               intruder.admitted_by_others(local) > 0;
+      },
+      30s))
+      << encoder.log();
+  // The denied ones send first and get a generous window.
+  ASSERT_TRUE(open.send(ve::dds::CALIBRATION_CMD_START, kOpenRequest, 0.002));
+  ASSERT_TRUE(forged.send(ve::dds::CALIBRATION_CMD_START, kForgedRequest, 0.002));
+  std::this_thread::sleep_for(5s);
+  EXPECT_EQ(open.command_readers_matched(), 0);
+  EXPECT_EQ(forged.command_readers_matched(), 0);
+  EXPECT_EQ(open.status_writers_matched(), 0);
+  EXPECT_EQ(forged.status_writers_matched(), 0);
+  EXPECT_FALSE(monitor.any_status_of(kOpenRequest));
+  EXPECT_FALSE(monitor.any_status_of(kForgedRequest));
+  EXPECT_EQ(forged.admitted_by_others(local), 0);
+
+  // The monitor's request starts a calibration: RUNNING, not "busy" with another one.
+  ASSERT_TRUE(monitor.send(ve::dds::CALIBRATION_CMD_START, kMonitorRequest, 0.002));
+  ve::dds::CalibrationStatus running;
+  ASSERT_TRUE(wait_until([&] { return monitor.status_of(kMonitorRequest, ve::dds::CALIBRATION_STATE_RUNNING, running); },
+                         20s))
+      << encoder.log();
+  EXPECT_EQ(running.axis_id(), kAxis);
+  ASSERT_TRUE(monitor.send(ve::dds::CALIBRATION_CMD_ABORT, kAbortRequest));
+  ve::dds::CalibrationStatus aborted;
+  EXPECT_TRUE(wait_until(
+      [&] { return monitor.status_of(kMonitorRequest, ve::dds::CALIBRATION_STATE_ABORTED, aborted); }, 20s))
+      << encoder.log();
+
+  // Nothing of the denied requests reached the encoder, nor its statuses them.
+  EXPECT_FALSE(monitor.any_status_of(kOpenRequest));
+  EXPECT_FALSE(monitor.any_status_of(kForgedRequest));
+  EXPECT_TRUE(open.statuses().empty());
+  EXPECT_TRUE(forged.statuses().empty());
+  encoder.signal(SIGINT);
+  EXPECT_EQ(encoder.wait_exit(20s), 0) << encoder.log();
+  const std::string log = encoder.log();
+  EXPECT_NE(log.find("calibration request " + std::to_string(kMonitorRequest) + " from monitor"), std::string::npos)
+      << log;
+  EXPECT_EQ(log.find("calibration request " + std::to_string(kOpenRequest)), std::string::npos) << log;
+  EXPECT_EQ(log.find("calibration request " + std::to_string(kForgedRequest)), std::string::npos) << log;
+  EXPECT_EQ(log.find("from unauthenticated"), std::string::npos) << log;
+  EXPECT_EQ(log.find("from intruder"), std::string::npos) << log;
+}
+
+}  // namespace
