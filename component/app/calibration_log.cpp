@@ -6,15 +6,24 @@ namespace ve::app {
 
 bool read_calibration_log(const std::string& path, int hall_count, std::vector<core::ReferenceSegment>& segments,
                           std::string& error) {
+  bool has_reference = false;
+  if (!read_calibration_log_any(path, hall_count, segments, has_reference, error)) return false;
+  if (!has_reference) {
+    segments.clear();
+    error = path + ": no ref_position_m column: calibration with a reference needs the ruler's position per sample";
+    return false;
+  }
+  return true;
+}
+
+bool read_calibration_log_any(const std::string& path, int hall_count, std::vector<core::ReferenceSegment>& segments,
+                              bool& has_reference, std::string& error) {
   replay::ReplaySource log(path, false);
   if (!log.ok()) {
     error = log.last_error();
     return false;
   }
-  if (!log.meta().has_reference) {
-    error = path + ": no ref_position_m column: calibration with a reference needs the ruler's position per sample";
-    return false;
-  }
+  has_reference = log.meta().has_reference;
   if (log.meta().hall_count != hall_count) {
     error = path + ": the log has " + std::to_string(log.meta().hall_count) + " Hall columns, the motor " +
             std::to_string(hall_count);
@@ -28,7 +37,7 @@ bool read_calibration_log(const std::string& path, int hall_count, std::vector<c
   drivers::ReadStatus st;
   while ((st = log.read(s)) == drivers::ReadStatus::ok) {
     double x = 0.0;
-    if (!log.reference_position(x)) {
+    if (has_reference && !log.reference_position(x)) {
       open = false;
       continue;
     }

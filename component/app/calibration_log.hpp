@@ -17,4 +17,10 @@ namespace ve::app {
 bool read_calibration_log(const std::string& path, int hall_count, std::vector<core::ReferenceSegment>& segments,
                           std::string& error);
 
+/// The same for calibration without a reference: every row, split into segments
+/// at gaps in time. `has_reference` tells whether the log has a ref_position_m
+/// column; when it has, the reference is read too (rows without one are skipped).
+bool read_calibration_log_any(const std::string& path, int hall_count, std::vector<core::ReferenceSegment>& segments,
+                              bool& has_reference, std::string& error);
+
 }  // namespace ve::app

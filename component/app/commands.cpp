@@ -23,6 +23,7 @@
 #include "config/loader.hpp"
 #include "core/status.hpp"
 #include "core/identification.hpp"
+#include "core/self_calibration.hpp"
 #include "dds_io.hpp"
 #include "realtime.hpp"
 #include "reports.hpp"
@@ -569,15 +570,29 @@ int calibrate_command(const CalibrateOptions& options) {
   };
 
   // The motion: a slow sweep over the whole travel and back, then fast multisine
-  // motion; the simulator's exact position plays the reference ruler.
+  // motion; the simulator's exact position plays the reference ruler (unless
+  // --no-reference, which never reads it).
   sim::CalibrationRunConfig run;
   run.sweep_speed_mps = options.sweep_speed_mps;
   run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
   std::vector<core::ReferenceSegment> segments;
   std::string error;
+  bool no_reference = options.no_reference;
   if (!options.log.empty()) {
-    if (!read_calibration_log(options.log, axis.motor.hall.count, segments, error)) {
+    bool has_reference = false;
+    if (!read_calibration_log_any(options.log, axis.motor.hall.count, segments, has_reference, error)) {
       std::fprintf(stderr, "%s\n", error.c_str());
+      return 2;
+    }
+    if (!has_reference && !no_reference) {
+      std::fprintf(stderr, "%s has no ref_position_m column: calibrating without a reference\n", options.log.c_str());
+      no_reference = true;
+    }
+    long rows = 0;
+    for (const auto& seg : segments) rows += static_cast<long>(seg.samples.size());
+    if (rows < 1000) {
+      std::fprintf(stderr, "%s: %ld usable rows: too short for a calibration%s\n", options.log.c_str(), rows,
+                   has_reference ? "" : " (and it has no ref_position_m column)");
       return 2;
     }
   } else if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error,
@@ -589,13 +604,25 @@ int calibrate_command(const CalibrateOptions& options) {
 
   core::Calibration cal;
   core::IdentificationReport report;
-  if (!core::identify_with_reference(axis.motor, segments, core::IdentificationConfig{}, cal, report, error)) {
+  core::SelfCalibrationReport self_report;
+  if (no_reference) {
+    core::SelfCalibrationConfig sc;
+    sc.hall_delay_s = options.hall_delay_us * 1e-6;
+    sc.accel_delay_s = options.accel_delay_us * 1e-6;
+    if (tty) std::fprintf(stderr, "identifying without a reference ...\n");
+    if (!core::identify_without_reference(axis.motor, segments, sc, cal, self_report, error)) {
+      std::fprintf(stderr, "calibration failed: %s\n", error.c_str());
+      return 1;
+    }
+    report = self_report.identification;
+  } else if (!core::identify_with_reference(axis.motor, segments, core::IdentificationConfig{}, cal, report, error)) {
     std::fprintf(stderr, "calibration failed: %s\n", error.c_str());
     return 1;
   }
   config::stamp_calibration(cal);
 
-  const std::string summary = format_identification_report(axis, cal, report);
+  const core::SelfCalibrationReport* self = no_reference ? &self_report : nullptr;
+  const std::string summary = format_identification_report(axis, cal, report, {}, self);
   if (!report.good && !options.force) {
     std::printf("%s", summary.c_str());
     std::fprintf(stderr, "calibration NOT written: the result is poor (see above); --force writes it anyway\n");
@@ -608,7 +635,10 @@ int calibrate_command(const CalibrateOptions& options) {
     return 1;
   }
   const std::string report_path = out + ".report.txt";
-  if (!write_text_file_atomic(report_path, summary, error))
+  std::string plot_error;
+  const auto plots = write_calibration_plots(out, cal, report, plot_error);
+  if (!plot_error.empty()) std::fprintf(stderr, "warning: cannot write a plot: %s\n", plot_error.c_str());
+  if (!write_text_file_atomic(report_path, format_identification_report(axis, cal, report, plots, self), error))
     std::fprintf(stderr, "warning: cannot write the report %s: %s\n", report_path.c_str(), error.c_str());
   std::printf("%s", summary.c_str());
   std::printf("calibration %s written to %s (report: %s)\n", cal.info.id.c_str(), out.c_str(), report_path.c_str());

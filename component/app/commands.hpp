@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <limits>
 #include <string>
 
 namespace ve::app {
@@ -39,6 +40,11 @@ struct CalibrateOptions {
   double sweep_acceleration_mps2 = 0.5;
   bool force = false;          ///< write the calibration even when its verdict is poor
   std::string log;             ///< raw log v1 with ref_position_m instead of a live simulator run
+  /// Calibrate without the reference (also chosen when the log has no ref_position_m column).
+  bool no_reference = false;
+  /// Without a reference, one absolute delay must come from the hardware's design [us]; NaN: not given.
+  double hall_delay_us = std::numeric_limits<double>::quiet_NaN();
+  double accel_delay_us = std::numeric_limits<double>::quiet_NaN();
 };
 int calibrate_command(const CalibrateOptions& options);
 

@@ -46,7 +46,13 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.005, 0.1))
       ->capture_default_str();
   cal_cmd->add_flag("--force", cal.force, "Write the calibration even when its verdict is poor");
-  cal_cmd->add_option("--log", cal.log, "Calibrate from a raw log v1 with a ref_position_m column");
+  cal_cmd->add_option("--log", cal.log, "Calibrate from a raw log v1 (with a ref_position_m column, or see --no-reference)");
+  cal_cmd->add_flag("--no-reference", cal.no_reference,
+                    "Calibrate without a reference ruler (automatic when the log has no ref_position_m column)");
+  cal_cmd->add_option("--hall-delay-us", cal.hall_delay_us,
+                      "Without a reference: the Halls' delay from the front end's design [us]");
+  cal_cmd->add_option("--accel-delay-us", cal.accel_delay_us,
+                      "Without a reference: the accelerometer's delay from its data sheet [us] (instead of the Halls')");
 
   ve::app::MonitorOptions mon;
   int mon_domain = -1;

@@ -7,12 +7,17 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <algorithm>
 #include <filesystem>
+#include <limits>
+
+#include "svg_plot.hpp"
 
 namespace ve::app {
 
 std::string format_identification_report(const config::AxisConfig& axis, const core::Calibration& cal,
-                                         const core::IdentificationReport& r) {
+                                         const core::IdentificationReport& r, const std::vector<std::string>& plots,
+                                         const core::SelfCalibrationReport* self) {
   std::string out;
   char buf[512];
   auto line = [&](const char* format, auto... args) {
@@ -35,11 +40,135 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
   line("  accelerometer%s: scale %.5f, bias %+.4f m/s^2, delay %.1f us, fit residual %.4f m/s^2 RMS\n",
        r.frame_accelerometer_used ? " (minus the frame accelerometer)" : "", r.accel_scale, r.accel_bias_mps2,
        r.accel_delay_s * 1e6, r.accel_fit_residual_mps2);
-  line("  Hall position vs reference in fast motion: %.3f um RMS compensated (%.3f um without)\n",
-       r.position_residual_um, r.position_residual_uncompensated_um);
+  line("  Hall position vs %s in fast motion: %.3f um RMS compensated (%.3f um without)\n",
+       self != nullptr ? "the self-made estimate (a consistency check)" : "reference", r.position_residual_um,
+       r.position_residual_uncompensated_um);
+  if (self != nullptr) {
+    const auto& s = *self;
+    line("Without a reference (the Halls, the accelerometer and the nominal pitch)\n");
+    line("  position 0 is where the carriage stood at the start of the sweep; the scale is the nominal pitch\n");
+    line("  averaged over the travel\n");
+    line("  slow passes: %d forward at %.3f mm/s, %d backward at %.3f mm/s; swept %.4f mm = %d whole periods\n",
+         s.passes_forward, s.forward_speed_mps * 1e3, s.passes_backward, s.backward_speed_mps * 1e3, s.swept_m * 1e3,
+         s.periods);
+    line("  passes vs Hall positions: %.3f um RMS along the passes, %.3f um RMS where they join\n",
+         s.pass_line_residual_m * 1e6, s.join_mismatch_m * 1e6);
+    line("  Hall delay %.2f us: %s (forward/backward against the estimate reproduce %.2f us)\n",
+         r.hall_delay_s * 1e6, s.hall_delay_source.c_str(), s.hall_delay_reproduced_s * 1e6);
+    if (!s.period_pitch_m.empty()) {
+      double lo = s.period_pitch_m.front(), hi = lo, sum = 0.0;
+      for (double p : s.period_pitch_m) lo = std::min(lo, p), hi = std::max(hi, p), sum += p;
+      line("  magnet periods (sensor 0): %zu, pitch %.4f mm mean, %.4f .. %.4f mm\n", s.period_pitch_m.size(),
+           sum / s.period_pitch_m.size() * 1e3, lo * 1e3, hi * 1e3);
+    }
+    std::string geo;
+    for (std::size_t i = 0; i < s.sensor_offset_m.size(); ++i) {
+      std::snprintf(buf, sizeof buf, "%s%.4f", i ? ", " : "", s.sensor_offset_m[i] * 1e3);
+      geo += buf;
+    }
+    line("  sensor positions relative to sensor 0: %s mm\n", geo.c_str());
+  }
+  if (!plots.empty()) {
+    line("Plots (SVG, beside this report)\n");
+    for (const auto& p : plots) line("  %s\n", std::filesystem::path(p).filename().c_str());
+  }
   line("Verdict: %s\n", r.good ? "GOOD" : "POOR");
   for (const auto& p : r.problems) line("  - %s\n", p.c_str());
   return out;
+}
+
+std::vector<std::string> write_calibration_plots(const std::string& calibration_path, const core::Calibration& cal,
+                                                 const core::IdentificationReport& r, std::string& error) {
+  std::vector<std::string> written;
+  const core::HallTable& t = cal.table;
+  const double pitch = cal.info.magnet_pitch_m > 0.0 ? cal.info.magnet_pitch_m : 0.012;
+  const std::string id = cal.info.motor + ", calibration " + cal.info.id + " (" + cal.info.method + ")";
+  auto save = [&](const char* name, const SvgPlot& plot) {
+    const std::string path = calibration_path + "." + name + ".svg";
+    std::string why;
+    if (write_text_file_atomic(path, render_svg(plot), why))
+      written.push_back(path);
+    else
+      error += (error.empty() ? "" : "; ") + path + ": " + why;
+  };
+  const int per_pitch = t.step_m > 0.0 ? static_cast<int>(std::lround(pitch / t.step_m)) : 0;
+  const int periods = per_pitch > 0 ? (t.points - 1) / per_pitch : 0;
+
+  if (t.valid() && periods > 0) {
+    // One period in the middle of the travel.
+    SvgPlot one;
+    const int p0 = periods / 2;
+    one.title = "Hall table over one magnet period (period " + std::to_string(p0 + 1) + " of " +
+                std::to_string(periods) + ") - " + id;
+    one.x_label = "position in the period [mm] (period starts at " +
+                  std::to_string(static_cast<int>(std::lround((t.start_m + p0 * per_pitch * t.step_m) * 1e3))) + " mm)";
+    one.y_label = "Hall output [V]";
+    for (int s = 0; s < t.sensors; ++s) {
+      SvgSeries series;
+      series.label = "sensor " + std::to_string(s);
+      series.color = svg_color(s);
+      for (int k = 0; k <= per_pitch; ++k) {
+        series.x.push_back(k * t.step_m * 1e3);
+        series.y.push_back(t.v[static_cast<std::size_t>(s) * t.points + p0 * per_pitch + k]);
+      }
+      one.series.push_back(std::move(series));
+    }
+    save("table-period", one);
+
+    // Every period folded onto one: the spread is each magnet's own signature.
+    SvgPlot all;
+    all.title = "Hall table, all " + std::to_string(periods) + " periods folded onto one - " + id;
+    all.x_label = "position modulo the pitch [mm]";
+    all.y_label = "Hall output [V]";
+    const int stride = std::max(1, per_pitch / 64);
+    for (int s = 0; s < t.sensors; ++s)
+      for (int p = 0; p < periods; ++p) {
+        SvgSeries series;
+        if (p == 0) series.label = "sensor " + std::to_string(s);
+        series.color = svg_color(s);
+        series.width = 0.8;
+        series.opacity = 0.35;
+        for (int k = 0; k <= per_pitch; k += stride) {
+          series.x.push_back(k * t.step_m * 1e3);
+          series.y.push_back(t.v[static_cast<std::size_t>(s) * t.points + p * per_pitch + k]);
+        }
+        all.series.push_back(std::move(series));
+      }
+    save("table-all-periods", all);
+  }
+
+  const auto& c = r.curves;
+  if (!c.position_m.empty()) {
+    std::vector<double> x_mm;
+    for (double x : c.position_m) x_mm.push_back(x * 1e3);
+    if (c.residual_mv.size() == x_mm.size()) {
+      SvgPlot res;
+      res.title = "Readings about the table during the sweep - " + id;
+      res.x_label = "position [mm]";
+      res.y_label = "RMS reading minus table [mV]";
+      res.series.push_back({"per " + std::to_string(static_cast<int>(std::lround(c.bin_m * 1e3))) + " mm", svg_color(0),
+                            x_mm, c.residual_mv, 1.3, 1.0});
+      char label[96];
+      std::snprintf(label, sizeof label, "overall %.3f mV", r.table_residual_mv);
+      res.hlines.emplace_back(r.table_residual_mv, label);
+      save("residuals", res);
+    }
+    if (c.forward_backward_um.size() == x_mm.size()) {
+      SvgPlot fb;
+      fb.title = "Forward minus backward pass - " + id;
+      fb.x_label = "position [mm]";
+      fb.y_label = "table shift forward - backward [um]";
+      fb.series.push_back({"per " + std::to_string(static_cast<int>(std::lround(c.bin_m * 1e3))) + " mm", svg_color(1),
+                           x_mm, c.forward_backward_um, 1.3, 1.0});
+      char label[128];
+      std::snprintf(label, sizeof label, "mean %.3f um = 2 v d: Hall delay %.2f us", r.forward_backward_shift_um,
+                    r.hall_delay_s * 1e6);
+      fb.hlines.emplace_back(r.forward_backward_shift_um, label);
+      fb.hlines.emplace_back(0.0, "0");
+      save("forward-backward", fb);
+    }
+  }
+  return written;
 }
 
 bool write_text_file_atomic(const std::string& path, const std::string& text, std::string& error) {

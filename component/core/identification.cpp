@@ -248,6 +248,17 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
       const double d = (table_f.v[i + 1] - table_f.v[i - 1]) / (2.0 * table_f.step_m);
       if (std::isfinite(d)) smax = std::max(smax, std::abs(d));
     }
+  // Per bin of position too, for the report's forward/backward plot.
+  auto& curves = rep.curves;
+  curves.bin_m = motor.magnet_pitch_m / 4.0;
+  const auto bins = static_cast<std::size_t>(std::ceil(motor.travel_m / curves.bin_m));
+  curves.position_m.resize(bins);
+  for (std::size_t b = 0; b < bins; ++b) curves.position_m[b] = (static_cast<double>(b) + 0.5) * curves.bin_m;
+  auto bin_of = [&](double x) -> long {
+    const auto b = static_cast<long>(std::floor(x / curves.bin_m));
+    return b >= 0 && b < static_cast<long>(bins) ? b : -1;
+  };
+  std::vector<double> bin_num(bins, 0.0), bin_den(bins, 0.0);
   double num = 0.0, den = 0.0;
   for (int s = 0; s < nh; ++s) {
     for (int k = 1; k < table_f.points - 1; ++k) {
@@ -261,8 +272,16 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
       if (std::abs(slope) < 0.3 * smax) continue;
       num += slope * (table_f.v[i] - table_b.v[i]);
       den += slope * slope;
+      const long b = bin_of(table_f.start_m + k * table_f.step_m);
+      if (b >= 0) {
+        bin_num[static_cast<std::size_t>(b)] += slope * (table_f.v[i] - table_b.v[i]);
+        bin_den[static_cast<std::size_t>(b)] += slope * slope;
+      }
     }
   }
+  curves.forward_backward_um.assign(bins, std::numeric_limits<double>::quiet_NaN());
+  for (std::size_t b = 0; b < bins; ++b)
+    if (bin_den[b] > 0.0) curves.forward_backward_um[b] = -bin_num[b] / bin_den[b] * 1e6;
   if (!(den > 0.0)) {
     error = "no sensor is out of saturation anywhere in the sweep: check the Hall wiring and the ADC range";
     return false;
@@ -287,7 +306,24 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
         b.add(seg.reference_m[i] - kin[g].v[i] * delay, corrected);
       }
     }
-    return b.finish(table, why);
+    if (cfg.fill_uncovered_ends_m <= 0.0) return b.finish(table, why);
+    b.finish(table, why, true);
+    const int per_pitch = cfg.points_per_pitch;
+    const int reach = static_cast<int>(std::ceil(cfg.fill_uncovered_ends_m / table.step_m));
+    for (int s = 0; s < table.sensors; ++s) {
+      double* row = table.v.data() + static_cast<std::size_t>(s) * table.points;
+      for (int k = reach; k >= 0; --k)
+        if (!std::isfinite(row[k]) && k + per_pitch < table.points) row[k] = row[k + per_pitch];
+      for (int k = table.points - 1 - reach; k < table.points; ++k)
+        if (k >= per_pitch && !std::isfinite(row[k])) row[k] = row[k - per_pitch];
+      for (int k = 0; k < table.points; ++k)
+        if (!std::isfinite(row[k])) {
+          why = "table nodes have no samples (first at " + std::to_string((table.start_m + k * table.step_m) * 1e3) +
+                " mm): the sweep must cover the whole travel";
+          return false;
+        }
+    }
+    return true;
   };
   HallTable table;
   if (!build_table(hall_delay, 0.0, table)) {
@@ -421,6 +457,8 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   {
     double sum = 0.0;
     long n = 0;
+    std::vector<double> bin_sum(bins, 0.0);
+    std::vector<long> bin_n(bins, 0);
     for (std::size_t g = 0; g < segments.size(); ++g) {
       const auto& seg = segments[g];
       for (std::size_t i = 0; i < seg.samples.size(); i += 7) {  // a subsample is plenty
@@ -432,10 +470,18 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
           const double r = y - table.value(s, xh);
           sum += r * r;
           ++n;
+          const long b = bin_of(xh);
+          if (b >= 0) {
+            bin_sum[static_cast<std::size_t>(b)] += r * r;
+            ++bin_n[static_cast<std::size_t>(b)];
+          }
         }
       }
     }
     rep.table_residual_mv = n > 0 ? std::sqrt(sum / n) * 1e3 : 0.0;
+    curves.residual_mv.assign(bins, std::numeric_limits<double>::quiet_NaN());
+    for (std::size_t b = 0; b < bins; ++b)
+      if (bin_n[b] > 0) curves.residual_mv[b] = std::sqrt(bin_sum[b] / static_cast<double>(bin_n[b])) * 1e3;
   }
   // Hall position against the reference in fast motion, with and without compensation.
   if (have_dynamic) {

@@ -44,6 +44,10 @@ struct IdentificationConfig {
   /// Largest accelerometer delay searched [s].
   double max_accel_delay_s = 1e-3;
   int points_per_pitch = 256;
+  /// Table nodes this close to an end of the travel that no sample reached take
+  /// the values one magnet period inwards instead of failing (calibration without
+  /// a reference: its own scale may end the sweep a few um short of the grid) [m].
+  double fill_uncovered_ends_m = 0.0;
   /// Search for a frame vibration in the accelerometer: frequency range and step
   /// [Hz], the stretch of recording used [s], and how far above the spectrum's
   /// median (and above an absolute level) a line must stand to count.
@@ -53,6 +57,14 @@ struct IdentificationConfig {
   double vibration_window_s = 8.0;
   double vibration_min_ratio = 8.0;
   double vibration_min_mps2 = 0.005;
+};
+
+/// What the report plots beside the figures: per bin of position over the travel.
+struct IdentificationCurves {
+  double bin_m = 0.0;                       ///< bin width [m]
+  std::vector<double> position_m;           ///< bin centres
+  std::vector<double> residual_mv;          ///< RMS of the sweep's readings about the final table; NaN: no data
+  std::vector<double> forward_backward_um;  ///< forward minus backward table as a position shift; NaN: no data
 };
 
 struct IdentificationReport {
@@ -77,6 +89,7 @@ struct IdentificationReport {
   double position_residual_uncompensated_um = 0.0;  ///< the same without delay and coil-field compensation
   bool good = false;
   std::vector<std::string> problems;     ///< why the result is not good, in words a commissioning engineer acts on
+  IdentificationCurves curves;           ///< for the report's plots
 };
 
 /// Identifies table and sensor model. False (with `error`) when the recording

@@ -1,0 +1,564 @@
+#include "self_calibration.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "hall_array.hpp"
+
+namespace ve::core {
+
+namespace {
+
+double segment_period(const MotorConfig& motor, const std::vector<RawSample>& s) {
+  if (s.size() < 2) return motor.sample_period_s();
+  return static_cast<double>(s.back().t_ns - s.front().t_ns) * 1e-9 / static_cast<double>(s.size() - 1);
+}
+
+/// The nominal table over the travel plus a margin of periods on either side, so
+/// that the first, relative, positions never run off its ends.
+HallTable extended_nominal_table(const MotorConfig& motor, int points_per_pitch, int margin_periods) {
+  MotorConfig m = motor;
+  m.travel_m = motor.travel_m + 2.0 * margin_periods * motor.magnet_pitch_m;
+  HallTable t = nominal_hall_table(m, points_per_pitch);
+  // The nominal field is periodic: shifting the grid by whole periods keeps its values.
+  t.start_m = -margin_periods * motor.magnet_pitch_m;
+  return t;
+}
+
+/// Hall positions of one segment, tracked sample to sample. The first sample is
+/// placed by a search over [lo, hi]; among the few best candidates the one whose
+/// first samples track with the smallest chi-square wins.
+void solve_positions(const HallArray& array, const std::vector<RawSample>& s, const std::vector<double>& common_mode,
+                     double lo, double hi, std::vector<double>& x) {
+  x.assign(s.size(), 0.0);
+  if (s.empty()) return;
+  const HallTable& t = array.table();
+  const double pitch = array.pitch_m();
+  // Candidates: the best grid node per period of the search window.
+  std::vector<std::pair<double, double>> cand;  // cost, position
+  const int k0 = std::max(0, static_cast<int>(std::ceil((lo - t.start_m) / t.step_m)));
+  const int k1 = std::min(t.points - 1, static_cast<int>(std::floor((hi - t.start_m) / t.step_m)));
+  const int per_pitch = std::max(1, static_cast<int>(std::lround(pitch / t.step_m)));
+  for (int p0 = k0; p0 <= k1; p0 += per_pitch) {
+    double best = std::numeric_limits<double>::infinity();
+    int best_k = p0;
+    for (int k = p0; k < std::min(k1 + 1, p0 + per_pitch); ++k) {
+      double cost = 0.0;
+      for (int i = 0; i < t.sensors && i < s[0].hall_count; ++i) {
+        if (!(s[0].hall_valid_mask >> i & 1u)) continue;
+        const double r = s[0].hall_v[i] - common_mode[0] - t.v[static_cast<std::size_t>(i) * t.points + k];
+        cost += r * r;
+      }
+      if (cost < best) best = cost, best_k = k;
+    }
+    cand.emplace_back(best, t.start_m + best_k * t.step_m);
+  }
+  std::sort(cand.begin(), cand.end());
+  if (cand.size() > 6) cand.resize(6);
+  const std::size_t probe = std::min<std::size_t>(s.size(), 400);
+  double best_score = std::numeric_limits<double>::infinity();
+  double start = cand.empty() ? lo : cand.front().second;
+  for (const auto& c : cand) {
+    double prev = c.second, prev2 = c.second, score = 0.0;
+    for (std::size_t i = 0; i < probe; ++i) {
+      const HallFix f = array.solve(s[i], 2.0 * prev - prev2, common_mode[i]);
+      score += f.ok ? f.chi2 : 1e6;
+      prev2 = prev;
+      prev = f.position_m;
+    }
+    if (score < best_score) best_score = score, start = c.second;
+  }
+  double prev = start, prev2 = start;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    const double guess = 2.0 * prev - prev2;
+    const HallFix f = array.solve(s[i], guess, common_mode[i]);
+    x[i] = f.sensors_used > 0 ? f.position_m : guess;
+    prev2 = prev;
+    prev = x[i];
+  }
+}
+
+/// The coil field seen in Hall positions solved with common mode c * a: the
+/// slope, against the acceleration, of the readings' mean residual about the
+/// table. Zero at the right c (the residual is linear in c).
+double coil_residual_slope(const MotorConfig& motor, const HallArray& array, const std::vector<RawSample>& s,
+                           const std::vector<double>& accel, double c, double min_accel, double lo, double hi) {
+  std::vector<double> cm(s.size()), x;
+  for (std::size_t i = 0; i < s.size(); ++i) cm[i] = c * accel[i];
+  solve_positions(array, s, cm, lo, hi, x);
+  const double lo_v = motor.adc.min_v + motor.hall.saturation_margin_v;
+  const double hi_v = motor.adc.max_v - motor.hall.saturation_margin_v;
+  double sa = 0, sr = 0, saa = 0, sar = 0;
+  long n = 0;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (std::abs(accel[i]) < min_accel) continue;
+    double sum = 0.0;
+    int k = 0;
+    for (int j = 0; j < array.table().sensors && j < s[i].hall_count; ++j) {
+      const double y = s[i].hall_v[j];
+      if (!(s[i].hall_valid_mask >> j & 1u) || y <= lo_v || y >= hi_v) continue;
+      sum += y - cm[i] - array.table().value(j, x[i]);
+      ++k;
+    }
+    if (k == 0) continue;
+    const double r = sum / k;
+    sa += accel[i], sr += r, saa += accel[i] * accel[i], sar += accel[i] * r, ++n;
+  }
+  if (n < 3) return 0.0;
+  const double va = saa / n - (sa / n) * (sa / n);
+  return va > 0.0 ? (sar / n - (sa / n) * (sr / n)) / va : 0.0;
+}
+
+struct Pass {
+  std::size_t begin = 0, end = 0;  ///< samples [begin, end)
+  double c = 0.0, v = 0.0;         ///< x = c + v (i - mid) ts
+  double mid = 0.0;
+};
+
+/// Runs of steady slow speed in one direction. The speed is taken over a long
+/// window (0.2 s): the nominal table's errors within a period would otherwise
+/// look like acceleration.
+std::vector<Pass> find_passes(const std::vector<double>& x, double ts, const SelfCalibrationConfig& cfg,
+                              const IdentificationConfig& ic) {
+  std::vector<Pass> out;
+  const std::size_t n = x.size();
+  const auto w = static_cast<std::size_t>(std::max(2.0, std::round(0.1 / ts)));  // half window
+  if (n < 4 * w) return out;
+  std::vector<double> v(n, 0.0);
+  for (std::size_t i = w; i + w < n; ++i) v[i] = (x[i + w] - x[i - w]) / (2.0 * static_cast<double>(w) * ts);
+  const auto min_len = static_cast<std::size_t>(cfg.min_pass_s / ts);
+  const auto margin = w + static_cast<std::size_t>(cfg.pass_margin_s / ts);
+  auto steady = [&](std::size_t k, int sign) {
+    if (k < 2 * w || k + w >= n) return false;
+    const double s = std::abs(v[k]);
+    return s >= ic.sweep_min_speed_mps && s <= ic.sweep_max_speed_mps && (v[k] > 0 ? 1 : -1) == sign &&
+           std::abs(v[k] - v[k - w]) <= 0.25 * s;
+  };
+  std::size_t i = 0;
+  while (i < n) {
+    if (!steady(i, v[i] > 0 ? 1 : -1)) {
+      ++i;
+      continue;
+    }
+    const int sign = v[i] > 0 ? 1 : -1;
+    std::size_t j = i;
+    while (j < n && steady(j, sign)) ++j;
+    if (j - i >= min_len + 2 * margin) {
+      Pass p;
+      p.begin = i + margin;
+      p.end = j - margin;
+      out.push_back(p);
+    }
+    i = std::max(j, i + 1);
+  }
+  return out;
+}
+
+void fit_line(const std::vector<double>& x, double ts, Pass& p) {
+  p.mid = 0.5 * static_cast<double>(p.begin + p.end - 1);
+  double st = 0, sx = 0, stt = 0, stx = 0;
+  const double n = static_cast<double>(p.end - p.begin);
+  for (std::size_t i = p.begin; i < p.end; ++i) {
+    const double t = (static_cast<double>(i) - p.mid) * ts;
+    st += t;
+    sx += x[i];
+    stt += t * t;
+    stx += t * x[i];
+  }
+  p.v = (n * stx - st * sx) / (n * stt - st * st);
+  p.c = (sx - p.v * st) / n;
+}
+
+double line_at(const Pass& p, std::size_t i, double ts) { return p.c + p.v * (static_cast<double>(i) - p.mid) * ts; }
+
+double accel_reading(const RawSample& s) { return s.accel_mps2 - (s.accel_base_valid ? s.accel_base_mps2 : 0.0); }
+
+}  // namespace
+
+void table_geometry(const MotorConfig& motor, const HallTable& t, std::vector<double>& sensor_offset_m,
+                    std::vector<double>& period_start_m, std::vector<double>& period_pitch_m) {
+  sensor_offset_m.assign(static_cast<std::size_t>(t.sensors), 0.0);
+  period_start_m.clear();
+  period_pitch_m.clear();
+  if (!t.valid()) return;
+  // Rising and falling crossings of each sensor's mid level; the mean of a rising
+  // and the next falling crossing does not move with the sensor's offset voltage.
+  std::vector<std::vector<double>> rising(static_cast<std::size_t>(t.sensors)), falling(rising.size());
+  for (int s = 0; s < t.sensors; ++s) {
+    const double* row = t.v.data() + static_cast<std::size_t>(s) * t.points;
+    const double mid = 0.5 * (*std::min_element(row, row + t.points) + *std::max_element(row, row + t.points));
+    for (int k = 0; k + 1 < t.points; ++k) {
+      const double a = row[k] - mid, b = row[k + 1] - mid;
+      if ((a < 0) == (b < 0)) continue;
+      const double x = t.start_m + (k + a / (a - b)) * t.step_m;
+      (a < 0 ? rising : falling)[static_cast<std::size_t>(s)].push_back(x);
+    }
+  }
+  const double pitch = motor.magnet_pitch_m;
+  // Sensor s crosses a track point at x = b - d_s: offsets from matching crossings.
+  const auto& r0 = rising[0];
+  for (int s = 1; s < t.sensors; ++s) {
+    const double nominal = motor.hall.offset_of(s) - motor.hall.offset_of(0);
+    double sum = 0.0;
+    int n = 0;
+    for (const auto* set : {&rising, &falling}) {
+      const auto& a = (*set)[0];
+      const auto& b = (*set)[static_cast<std::size_t>(s)];
+      for (double xa : a) {
+        // The crossing of sensor s for the same track point is near xa - nominal.
+        const auto it = std::lower_bound(b.begin(), b.end(), xa - nominal - 0.25 * pitch);
+        if (it == b.end() || *it > xa - nominal + 0.25 * pitch) continue;
+        sum += xa - *it;
+        ++n;
+      }
+    }
+    sensor_offset_m[static_cast<std::size_t>(s)] = n > 0 ? sum / n : nominal;
+  }
+  for (std::size_t i = 0; i + 1 < r0.size(); ++i) {
+    period_start_m.push_back(r0[i]);
+    period_pitch_m.push_back(r0[i + 1] - r0[i]);
+  }
+}
+
+bool identify_without_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
+                                const SelfCalibrationConfig& cfg, Calibration& out, SelfCalibrationReport& rep,
+                                std::string& error) {
+  rep = SelfCalibrationReport{};
+  IdentificationConfig ic = cfg.identification;
+  // In fast motion the self-made position carries small errors at the magnet
+  // frequency (hundreds of Hz), which a short derivative window would pass as
+  // acceleration and so bias the accelerometer's scale low: differentiate over
+  // 50 ms instead (the calibration motion's acceleration changes far slower).
+  if (cfg.derivative_half_window_s > 0.0)
+    ic.derivative_half_window = static_cast<int>(std::lround(cfg.derivative_half_window_s * motor.sample_rate_hz));
+  if (ic.fill_uncovered_ends_m <= 0.0) ic.fill_uncovered_ends_m = motor.magnet_pitch_m / 4.0;
+  const std::size_t ng = segments.size();
+  // Working copy: the samples, and the position estimate that stands in for the ruler.
+  std::vector<ReferenceSegment> work(ng);
+  std::vector<double> ts(ng);
+  long total = 0;
+  for (std::size_t g = 0; g < ng; ++g) {
+    work[g].samples = segments[g].samples;  // reference_m is never read
+    work[g].reference_m.assign(work[g].samples.size(), 0.0);
+    ts[g] = segment_period(motor, work[g].samples);
+    total += static_cast<long>(work[g].samples.size());
+  }
+  if (total < 1000) {
+    error = "the recording has " + std::to_string(total) + " samples: too short for a calibration";
+    return false;
+  }
+
+  const bool hall_given = std::isfinite(cfg.hall_delay_s);
+  const bool accel_given = !hall_given && std::isfinite(cfg.accel_delay_s);
+  double hall_delay = hall_given ? cfg.hall_delay_s : 0.0;
+  rep.hall_delay_source = hall_given    ? "given"
+                          : accel_given ? "from the accelerometer delay given"
+                                        : "assumed 0 (not given)";
+
+  HallTable table = extended_nominal_table(motor, ic.points_per_pitch, 4);
+  double coil = 0.0;
+  std::vector<std::vector<double>> accel(ng);  // the estimate's acceleration per sample (coil field)
+  for (std::size_t g = 0; g < ng; ++g) accel[g].assign(work[g].samples.size(), 0.0);
+  std::vector<double> xh, v, a;
+  std::vector<char> valid;
+  IdentificationReport idrep;
+  Calibration cal;
+  const int iterations = std::max(1, cfg.iterations);
+  std::size_t sweep_segment = ng;
+  double accel_scale = 1.0, accel_lag_s = 0.0;  // the accelerometer relative to the Halls, as far as known
+  double coil_found = std::numeric_limits<double>::quiet_NaN();
+  double best_residual_mv = std::numeric_limits<double>::infinity(), best_hall_delay = 0.0, best_join_m = 0.0;
+  Calibration best_cal;
+  IdentificationReport best_idrep;
+  for (int it = 0; it < iterations; ++it) {
+    const HallArray array(motor, table);
+    rep.passes_forward = rep.passes_backward = 0;
+    double speed_f = 0.0, speed_b = 0.0, lo = std::numeric_limits<double>::infinity(), hi = -lo;
+    double join_sq = 0.0, line_sq = 0.0;
+    long joins = 0, line_n = 0;
+    std::vector<std::vector<Pass>> passes(ng);
+    for (std::size_t g = 0; g < ng; ++g) {
+      const auto& s = work[g].samples;
+      std::vector<double> cm(s.size());
+      for (std::size_t i = 0; i < s.size(); ++i) cm[i] = coil * accel[g][i];
+      // First iteration: any period will do (relative positions). Later: the whole table.
+      const double search_lo = it == 0 ? 0.0 : table.start_m;
+      const double search_hi = it == 0 ? motor.magnet_pitch_m : table.end_m();
+      std::vector<double> x;
+      if (it > 0 && g != sweep_segment) {
+        // Fast motion: the coil field shifts the Hall positions themselves, so it
+        // is found here, as the value that leaves no residual in step with the
+        // acceleration (linear in it: one secant step from two trials).
+        const double c0 = coil, c1 = coil + 1e-3;
+        const double g0 = coil_residual_slope(motor, array, s, accel[g], c0, ic.dynamic_min_accel_mps2, search_lo, search_hi);
+        const double g1 = coil_residual_slope(motor, array, s, accel[g], c1, ic.dynamic_min_accel_mps2, search_lo, search_hi);
+        if (std::abs(g1 - g0) > 1e-12) {
+          const double c = c0 - g0 * (c1 - c0) / (g1 - g0);
+          for (std::size_t i = 0; i < s.size(); ++i) cm[i] = c * accel[g][i];
+          coil_found = c;
+        }
+      }
+      if (it > 0 && g == sweep_segment) {
+        // The sweep starts at zero by definition.
+        solve_positions(array, s, cm, -0.5 * motor.magnet_pitch_m, 0.5 * motor.magnet_pitch_m, x);
+      } else {
+        solve_positions(array, s, cm, search_lo, search_hi, x);
+      }
+      passes[g] = find_passes(x, ts[g], cfg, ic);
+      for (auto& p : passes[g]) fit_line(x, ts[g], p);
+      // The estimate: the lines within passes; elsewhere the Hall positions,
+      // shifted to join the lines on either side (linearly in between).
+      auto& xr = work[g].reference_m;
+      xr = x;
+      const auto& ps = passes[g];
+      for (const auto& p : ps) {
+        for (std::size_t i = p.begin; i < p.end; ++i) {
+          const double r = x[i] - line_at(p, i, ts[g]);
+          line_sq += r * r;
+          ++line_n;
+          xr[i] = line_at(p, i, ts[g]);
+        }
+      }
+      auto mismatch = [&](const Pass& p, bool at_end) {
+        // Line minus Hall position over the 100 samples at the join.
+        const std::size_t n = std::min<std::size_t>(100, p.end - p.begin);
+        double sum = 0.0;
+        for (std::size_t k = 0; k < n; ++k) {
+          const std::size_t i = at_end ? p.end - 1 - k : p.begin + k;
+          sum += line_at(p, i, ts[g]) - x[i];
+        }
+        return sum / static_cast<double>(n);
+      };
+      // Bias: the mean reading within the passes (the speed is steady there).
+      double bias = 0.0;
+      {
+        double sum = 0.0;
+        long n = 0;
+        for (const auto& p : ps)
+          for (std::size_t i = p.begin; i < p.end; ++i)
+            if (s[i].accel_valid) sum += accel_reading(s[i]), ++n;
+        if (n > 0) bias = sum / static_cast<double>(n);
+      }
+      const long shift = std::lround(accel_lag_s / ts[g]);
+      auto acc = [&](std::size_t i) {
+        const long j = std::clamp(static_cast<long>(i) + shift, 0L, static_cast<long>(s.size()) - 1);
+        const auto& smp = s[static_cast<std::size_t>(j)];
+        return smp.accel_valid ? (accel_reading(smp) - bias) / accel_scale : 0.0;
+      };
+      const auto max_gap = static_cast<std::size_t>(1.0 / ts[g]);
+      for (std::size_t q = 0; q <= ps.size(); ++q) {
+        // The gap between pass q-1 and pass q: short ones (turnarounds) are bridged
+        // by the accelerometer from the line on either side, blended linearly.
+        const std::size_t from = q == 0 ? 0 : ps[q - 1].end;
+        const std::size_t to = q == ps.size() ? s.size() : ps[q].begin;
+        if (to <= from) continue;
+        const bool has_before = q > 0, has_after = q < ps.size();
+        // A turnaround (a pass on either side) joins the two lines through the Hall
+        // positions, shifted linearly; the start and the end of a recording (a pass
+        // on one side only) are bridged by the accelerometer from the line.
+        if (has_before != has_after && to - from <= max_gap) {
+          std::vector<double> xf(to - from, 0.0), xb(to - from, 0.0);
+          if (has_before) {
+            const Pass& p = ps[q - 1];
+            double xx = line_at(p, p.end - 1, ts[g]), vv = p.v;
+            for (std::size_t i = from; i < to; ++i) {
+              vv += acc(i) * ts[g];
+              xx += vv * ts[g];
+              xf[i - from] = xx;
+            }
+          }
+          if (has_after) {
+            const Pass& p = ps[q];
+            double xx = line_at(p, p.begin, ts[g]), vv = p.v;
+            for (std::size_t i = to; i-- > from;) {
+              xx -= vv * ts[g];
+              vv -= acc(i) * ts[g];
+              xb[i - from] = xx;
+            }
+          }
+          if (has_before && has_after) {
+            const double m = xf.back() - xb.back();
+            join_sq += m * m, ++joins;
+          }
+          for (std::size_t i = from; i < to; ++i) {
+            const double w = has_before && has_after
+                                 ? static_cast<double>(i - from + 1) / static_cast<double>(to - from + 1)
+                                 : (has_after ? 1.0 : 0.0);
+            xr[i] = (1.0 - w) * xf[i - from] + w * xb[i - from];
+          }
+          continue;
+        }
+        const double m0 = has_before ? mismatch(ps[q - 1], true) : 0.0;
+        const double m1 = has_after ? mismatch(ps[q], false) : 0.0;
+        if (has_before && has_after) {
+          // Closure: both lines should need the same shift at the turnaround.
+          join_sq += (m1 - m0) * (m1 - m0);
+          ++joins;
+        }
+        for (std::size_t i = from; i < to; ++i) {
+          double off = 0.0;
+          if (has_before && has_after)
+            off = m0 + (m1 - m0) * static_cast<double>(i - from) / static_cast<double>(std::max<std::size_t>(1, to - from));
+          else if (has_before)
+            off = m0;
+          else if (has_after)
+            off = m1;
+          xr[i] = x[i] + off;
+        }
+      }
+      for (const auto& p : ps) {
+        if (p.v > 0)
+          ++rep.passes_forward, speed_f += p.v;
+        else
+          ++rep.passes_backward, speed_b -= p.v;
+        lo = std::min({lo, xr[p.begin], xr[p.end - 1]});
+        hi = std::max({hi, xr[p.begin], xr[p.end - 1]});
+      }
+    }
+    if (rep.passes_forward == 0 || rep.passes_backward == 0) {
+      error = "the recording has " + std::to_string(rep.passes_forward) + " forward and " +
+              std::to_string(rep.passes_backward) + " backward slow passes (steady " +
+              std::to_string(ic.sweep_min_speed_mps * 1e3).substr(0, 5) + ".." +
+              std::to_string(ic.sweep_max_speed_mps * 1e3).substr(0, 5) +
+              " mm/s for at least " + std::to_string(cfg.min_pass_s).substr(0, 4) +
+              " s): calibration without a reference needs a slow pass over the whole travel in each direction";
+      return false;
+    }
+    rep.forward_speed_mps = speed_f / rep.passes_forward;
+    rep.backward_speed_mps = speed_b / rep.passes_backward;
+    rep.join_mismatch_m = joins > 0 ? std::sqrt(join_sq / joins) : 0.0;
+    rep.pass_line_residual_m = line_n > 0 ? std::sqrt(line_sq / line_n) : 0.0;
+
+    // Zero: where the carriage stood at the start of the first slow pass's segment.
+    if (it == 0) {
+      for (std::size_t g = 0; g < ng && sweep_segment == ng; ++g)
+        if (!passes[g].empty()) sweep_segment = g;
+    }
+    {
+      const auto& xr = work[sweep_segment].reference_m;
+      const std::size_t n = std::min<std::size_t>(40, xr.size());
+      double zero = 0.0;
+      for (std::size_t i = 0; i < n; ++i) zero += xr[i];
+      zero /= static_cast<double>(n);
+      for (auto& w : work)
+        for (auto& x : w.reference_m) x -= zero;
+      lo -= zero;
+      hi -= zero;
+    }
+    // What the sweep covered: its whole recording, turnarounds included.
+    {
+      const auto& xr = work[sweep_segment].reference_m;
+      lo = *std::min_element(xr.begin(), xr.end());
+      hi = *std::max_element(xr.begin(), xr.end());
+    }
+    rep.swept_m = hi - lo;
+    rep.periods = static_cast<int>(std::floor(rep.swept_m / motor.magnet_pitch_m + 1e-6));
+
+    // The estimate is where the Halls saw the carriage; the ruler it stands in for
+    // reads the carriage now: shift it by the Hall delay.
+    for (std::size_t g = 0; g < ng; ++g) {
+      auto& xr = work[g].reference_m;
+      differentiate(xr, ts[g], ic.derivative_half_window, v, a, valid);
+      // Near the ends (no derivative) hold the nearest valid one.
+      std::size_t first = 0;
+      while (first < valid.size() && !valid[first]) ++first;
+      if (first == valid.size()) continue;
+      std::size_t last = valid.size() - 1;
+      while (!valid[last]) --last;
+      for (std::size_t i = 0; i < xr.size(); ++i) {
+        const std::size_t k = std::clamp(i, first, last);
+        accel[g][i] = a[k];
+        xr[i] += v[k] * hall_delay + 0.5 * a[k] * hall_delay * hall_delay;
+      }
+    }
+
+    // The first pass knows positions only relative to its own segment: identify
+    // from the sweep alone; later passes place every segment on the table.
+    if (it == 0) {
+      const std::vector<ReferenceSegment> sweep_only{work[sweep_segment]};
+      if (!identify_with_reference(motor, sweep_only, ic, cal, idrep, error)) return false;
+    } else if (!identify_with_reference(motor, work, ic, cal, idrep, error)) {
+      std::string where;
+      for (std::size_t g = 0; g < ng; ++g)
+        for (const auto& p : passes[g])
+          where += " [segment " + std::to_string(g) + ": " + std::to_string(work[g].reference_m[p.begin] * 1e3) + ".." +
+                   std::to_string(work[g].reference_m[p.end - 1] * 1e3) + " mm]";
+      error = "iteration " + std::to_string(it + 1) + ", slow passes" + where + ": " + error;
+      return false;
+    }
+    table = cal.table;
+    coil = std::isfinite(coil_found) ? coil_found : cal.model.coil_field_v_per_mps2;
+    cal.model.coil_field_v_per_mps2 = coil;
+    rep.hall_delay_reproduced_s = idrep.hall_delay_s;
+    {
+      char line[320];
+      std::snprintf(line, sizeof line,
+                    "iteration %d: Hall delay used %.2f us (reproduced %.2f), coil field %.4f mV/(m/s^2) (secant %.4f), "
+                    "accelerometer scale %.5f bias %.4f delay %.1f us, table residual %.3f mV, joins %.3f um",
+                    it + 1, hall_delay * 1e6, idrep.hall_delay_s * 1e6, idrep.coil_field_v_per_mps2 * 1e3,
+                    coil_found * 1e3, cal.model.accel_scale, cal.model.accel_bias_mps2, cal.model.accel_delay_s * 1e6,
+                    idrep.table_residual_mv, rep.join_mismatch_m * 1e6);
+      rep.iterations.push_back(line);
+    }
+    // The iterations need not settle (the coil field, the accelerometer and the
+    // joins pull on each other): keep the one whose table explains the readings best.
+    if (it > 0 && idrep.dynamic_samples >= ic.dynamic_min_samples && idrep.table_residual_mv < best_residual_mv) {
+      best_residual_mv = idrep.table_residual_mv;
+      best_cal = cal;
+      best_idrep = idrep;
+      best_hall_delay = hall_delay;
+      best_join_m = rep.join_mismatch_m;
+    }
+    if (idrep.dynamic_samples >= ic.dynamic_min_samples && cal.model.accel_scale > 0.8 && cal.model.accel_scale < 1.2) {
+      accel_scale = cal.model.accel_scale;
+      accel_lag_s = std::clamp(cal.model.accel_delay_s - hall_delay, 0.0, ic.max_accel_delay_s);
+    }
+    if (accel_given && idrep.dynamic_samples >= ic.dynamic_min_samples) {
+      // The accelerometer lags the estimate by its delay minus the Halls' plus the shift applied.
+      hall_delay += cfg.accel_delay_s - cal.model.accel_delay_s;
+    }
+  }
+
+  if (best_residual_mv < std::numeric_limits<double>::infinity()) {
+    cal = best_cal;
+    idrep = best_idrep;
+    hall_delay = best_hall_delay;
+    rep.join_mismatch_m = best_join_m;
+    rep.hall_delay_reproduced_s = idrep.hall_delay_s;
+  }
+  out = cal;
+  out.model.hall_delay_s = hall_delay;
+  if (accel_given) out.model.accel_delay_s = cfg.accel_delay_s;
+  out.info.method = "no-reference";
+  rep.identification = idrep;
+  auto& r = rep.identification;
+  r.hall_delay_s = hall_delay;
+  r.accel_delay_s = out.model.accel_delay_s;
+  // The position residual in fast motion is against the self-made estimate, which
+  // came from these Halls: it checks consistency, not accuracy.
+  table_geometry(motor, out.table, rep.sensor_offset_m, rep.period_start_m, rep.period_pitch_m);
+  char buf[320];
+  if (!hall_given && !accel_given) {
+    r.problems.push_back(
+        "the Hall delay cannot be measured without a reference (every sensor could lag by the same time): it was "
+        "taken as 0; give the Halls' delay from the front end's design (--hall-delay-us) or the accelerometer's from "
+        "its data sheet (--accel-delay-us)");
+  }
+  if (rep.join_mismatch_m > 2e-6) {
+    std::snprintf(buf, sizeof buf,
+                  "the slow passes and the Hall positions disagree by %.1f um RMS where they join: the speed was "
+                  "not steady within the passes",
+                  rep.join_mismatch_m * 1e6);
+    r.problems.push_back(buf);
+  }
+  if (rep.swept_m < 0.95 * motor.travel_m) {
+    std::snprintf(buf, sizeof buf, "the slow passes cover %.1f mm of the %.1f mm travel", rep.swept_m * 1e3,
+                  motor.travel_m * 1e3);
+    r.problems.push_back(buf);
+  }
+  r.good = r.problems.empty();
+  return true;
+}
+
+}  // namespace ve::core

@@ -1,0 +1,103 @@
+// Calibration without a reference ruler: the Halls, the accelerometer and the
+// nominal pitch are all there is.
+//
+// What it needs: the same recording as the calibration with a reference (a slow
+// pass over the whole travel and back at a steady speed, plus fast motion), with
+// no reference column. What it does:
+//  1. Hall positions with the nominal table (sensors spaced as the motor file
+//     says), unwrapped over the whole recording.
+//  2. The slow passes are found in them (steady speed, one direction, at least a
+//     second). Within a pass the carriage moves at a steady speed, so time is the
+//     ruler between the magnets: each pass is fitted with one straight line
+//     x = c + v t. The speed of that line is set by the nominal pitch over every
+//     period the pass crosses (the track's placement errors do not accumulate);
+//     every magnet period then gets its own pitch, at the scale of time, and each
+//     sensor's table keeps every magnet's signature. Outside the passes (the
+//     turnarounds, the fast motion) positions are the Hall positions solved with
+//     the current table, shifted to join the passes continuously.
+//  3. That position estimate stands in for the ruler in identify_with_reference
+//     (tables, coil field, accelerometer scale, bias and delay, vibration); its
+//     tables and coil field re-solve the Hall positions, and the loop repeats.
+//
+// What it cannot know (and says so):
+//  - The absolute zero. Position 0 is where the carriage stood at the start of the
+//    first slow pass's recording (normally one end of the travel).
+//  - The absolute timing. Every sensor in the recording could lag by the same
+//    extra time and the recording would look the same, so only the accelerometer's
+//    delay relative to the Halls is measured. One delay must be given from the
+//    hardware's design (the Hall front end's filter, or the accelerometer's
+//    data sheet): `hall_delay_s` or `accel_delay_s` below.
+//  - The scale beyond the nominal pitch: the mean pitch over the travel is taken
+//    as nominal; with N periods placed with errors of sigma each, the scale is
+//    good to about sigma * sqrt(3) / (N^1.5 * pitch).
+// Pure computation on vectors held in memory; no I/O. The reference column of the
+// segments, when there is one, is never read.
+#pragma once
+
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "hall_table.hpp"
+#include "identification.hpp"
+#include "motor.hpp"
+#include "sample.hpp"
+
+namespace ve::core {
+
+struct SelfCalibrationConfig {
+  IdentificationConfig identification;
+  /// Outer iterations: solve positions with the table, rebuild the table.
+  int iterations = 5;
+  /// The one absolute delay the recording cannot tell: give the Halls' (from the
+  /// front end's filter design) or the accelerometer's (its data sheet). When both
+  /// are NaN the Hall delay is taken as 0 and the report says so.
+  double hall_delay_s = std::numeric_limits<double>::quiet_NaN();
+  double accel_delay_s = std::numeric_limits<double>::quiet_NaN();
+  /// A slow pass: at least this long at steady speed [s].
+  double min_pass_s = 1.0;
+  /// Samples left out at either end of a pass (the speed settling) [s].
+  double pass_margin_s = 0.05;
+  /// Half-width of the derivative window applied to the self-made position [s];
+  /// 0: the identification's own.
+  double derivative_half_window_s = 0.0;
+};
+
+struct SelfCalibrationReport {
+  IdentificationReport identification;  ///< the final identification against the self-made position
+  int passes_forward = 0;
+  int passes_backward = 0;
+  double forward_speed_mps = 0.0;       ///< mean speed of the forward passes
+  double backward_speed_mps = 0.0;
+  double swept_m = 0.0;                 ///< length covered by the slow passes (far end minus near end)
+  int periods = 0;                      ///< whole magnet periods over the swept length
+  /// How far apart the pass lines and the Hall positions are where they join,
+  /// after the last iteration (RMS over the joins) [m]; large: the speed was not steady.
+  double join_mismatch_m = 0.0;
+  /// Straight-line fit residual of the Hall positions within the passes, RMS [m]
+  /// (with the final table: what a speed ripple would show as).
+  double pass_line_residual_m = 0.0;
+  /// Each magnet period's pitch along the travel (sensor 0's rising crossings) [m].
+  std::vector<double> period_start_m;
+  std::vector<double> period_pitch_m;
+  /// Each sensor's position on the carriage relative to sensor 0 (from the tables) [m].
+  std::vector<double> sensor_offset_m;
+  /// Where the Hall delay came from ("given", "from the accelerometer delay given", "assumed 0").
+  std::string hall_delay_source;
+  double hall_delay_reproduced_s = 0.0; ///< what forward/backward gave against the self-made position (a check)
+  std::vector<std::string> iterations;  ///< one line per iteration: what it found
+};
+
+/// Identifies table and sensor model without a reference. False (with `error`)
+/// when the recording cannot give a result (no slow pass in each direction, ...);
+/// otherwise true, with report.identification.good telling whether to trust it.
+bool identify_without_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
+                                const SelfCalibrationConfig& config, Calibration& out, SelfCalibrationReport& report,
+                                std::string& error);
+
+/// Each sensor's offset on the carriage relative to sensor 0, and each magnet
+/// period's start and pitch, from a table's crossings of the mid level.
+void table_geometry(const MotorConfig& motor, const HallTable& table, std::vector<double>& sensor_offset_m,
+                    std::vector<double>& period_start_m, std::vector<double>& period_pitch_m);
+
+}  // namespace ve::core
