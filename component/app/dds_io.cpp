@@ -17,6 +17,9 @@
 #include <fastdds/dds/subscriber/Subscriber.hpp>
 #include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
+#include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
+#include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
+#include <fastrtps/utils/IPLocator.h>
 #include <spdlog/spdlog.h>
 
 #include "VirtualEncoderPubSubTypes.h"
@@ -131,6 +134,54 @@ void calibration_status_defaults(Q& q) {
   q.history().depth = 1;
 }
 
+// The participant's transports and locators when no profile is loaded (the
+// same as "ve_participant" in deploy/dds-profiles.xml).
+//
+// Why the process receives over UDPv4 only, though it has shared memory too:
+// a restart after a crash (SIGKILL, then systemd's Restart=on-failure) gets the
+// same participant id and so the same shared-memory port numbers as the dead
+// process. Fast DDS 2.9 finds the dead ports, removes them and creates new ones
+// under the same names, but every peer that stayed up keeps the dead port
+// mapped (its port cache is keyed by port number) and goes on pushing
+// discovery and data into it, where nothing reads (a peer on the same host
+// keeps only the shared-memory locators of a participant that announces both,
+// so UDPv4 does not carry it meanwhile), until its own health check
+// gives the port up and it opens the new one: 1 to 4 s before the first
+// sample reached a subscriber, against 40 to 160 ms with UDPv4 only (restart
+// test, tests/bench/bench_soak --restarts). Neither healthy_check_timeout_ms
+// (it is the peer's port, with the timeout of the process that made it) nor
+// `fastdds shm clean` before the start (the peer's mapping survives the unlink)
+// changed it; discovery over UDPv4 with user data still received over shared
+// memory helped only in part (up to 2.7 s). A process that announces no shared-memory locator leaves no port for
+// a peer to hold on to, and it still writes over shared memory to every local
+// reader that announces one: the state stream to local consumers stays on
+// shared memory; what reaches this process (discovery, acknowledgements,
+// calibration commands) comes over UDPv4 (loopback on the host).
+void receive_over_udp_only(fdds::DomainParticipantQos& pq) {
+  namespace rtps = eprosima::fastdds::rtps;
+  using eprosima::fastrtps::rtps::IPLocator;
+  using eprosima::fastrtps::rtps::Locator_t;
+  pq.transport().use_builtin_transports = false;
+  pq.transport().user_transports.clear();
+  pq.transport().user_transports.push_back(std::make_shared<rtps::SharedMemTransportDescriptor>());
+  pq.transport().user_transports.push_back(std::make_shared<rtps::UDPv4TransportDescriptor>());
+  // Port 0 and no address: Fast DDS fills in the domain's ports and the host's
+  // interfaces, as for its default locators. The multicast discovery locator
+  // must be given too once a unicast one is (else none is used).
+  Locator_t unicast;
+  unicast.kind = LOCATOR_KIND_UDPv4;
+  Locator_t multicast;
+  multicast.kind = LOCATOR_KIND_UDPv4;
+  IPLocator::setIPv4(multicast, 239, 255, 0, 1);
+  auto& wire = pq.wire_protocol();
+  wire.builtin.metatrafficUnicastLocatorList.clear();
+  wire.builtin.metatrafficUnicastLocatorList.push_back(unicast);
+  wire.builtin.metatrafficMulticastLocatorList.clear();
+  wire.builtin.metatrafficMulticastLocatorList.push_back(multicast);
+  wire.default_unicast_locator_list.clear();
+  wire.default_unicast_locator_list.push_back(unicast);
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------- DdsContext
@@ -165,6 +216,7 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
     return nullptr;
   } else {
     factory->get_default_participant_qos(pq);
+    if (!options.receive_over_shm) receive_over_udp_only(pq);
   }
   pq.name(options.participant_name);
   if (!options.statistics.empty()) {

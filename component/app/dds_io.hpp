@@ -69,6 +69,14 @@ struct DdsOptions {
   /// endpoints. Default from the environment: VE_DDS_TYPE_INFORMATION=1 turns it on.
   bool type_information = type_information_from_env();
   static bool type_information_from_env();
+  /// Built-in QoS only (no participant profile): also receive over shared memory,
+  /// i.e. announce shared-memory locators besides UDPv4 (Fast DDS's default
+  /// participant). Off by default: the process then receives over UDPv4 only and
+  /// still sends over shared memory to every peer on the host that offers it, so
+  /// that a restart after a crash is not held up by peers writing into the dead
+  /// process' shared-memory ports (see DdsContext::create). Meant for test and
+  /// bench subscribers standing in for a consumer with Fast DDS's defaults.
+  bool receive_over_shm = false;
 };
 
 /// Owns the participant and the topics. Deleting it deletes every entity it
