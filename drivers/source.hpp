@@ -44,6 +44,8 @@ class SensorSource {
 
   virtual std::string describe() const = 0;
   virtual std::string last_error() const { return {}; }
+  /// The driver's own counters in one line (frames, gaps, drops...), for the exit log; "" if none.
+  virtual std::string stats() const { return {}; }
 };
 
 }  // namespace ve::drivers

@@ -1,5 +1,6 @@
 #include "axis.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 #include "config/calibration_file.hpp"
@@ -121,7 +122,8 @@ ve::dds::AxisDescription describe_axis(const AxisSetup& axis, const config::Mach
   d.axis_id(axis.config.id);
   d.hall_count(static_cast<std::uint32_t>(axis.config.motor.hall.count));
   d.counts_per_m(axis.config.output.counts_per_m);
-  d.sample_rate_hz(axis.config.motor.sample_rate_hz);
+  // The rate of this axis' ve/encoder_state stream (sensor rate / output.publish_divider).
+  d.sample_rate_hz(axis.config.motor.sample_rate_hz / std::max(1, axis.config.output.publish_divider));
   d.deadline_ms(machine.dds.deadline_ms);
   d.direction(axis.config.output.direction);
   d.name(axis.config.name);

@@ -99,7 +99,8 @@ struct AxisLoop {
   std::thread thread;
   int slot = -1;  ///< StateWriter::add_axis
   StallHook stall;
-  std::atomic<std::uint64_t> samples{0};
+  std::atomic<std::uint64_t> samples{0};    ///< estimated
+  std::atomic<std::uint64_t> published{0};  ///< state samples written (every publish_divider-th)
   std::atomic<std::uint64_t> write_failures{0};
   std::atomic<std::uint64_t> skipped{0};
   std::atomic<std::uint64_t> diagnostics_published{0};
@@ -137,7 +138,7 @@ void fill_diagnostics(const AxisLoop& loop, const DiagnosticsAccumulator& acc, c
   d.sample_time_ns(state.sample_time_ns());
   d.publish_time_ns(clock_ns(CLOCK_REALTIME));
   d.period_samples(acc.samples);
-  d.samples_total(loop.samples.load(std::memory_order_relaxed));
+  d.samples_total(state.sequence_number());  // published state samples
   d.samples_skipped_total(loop.skipped.load(std::memory_order_relaxed));
   d.write_failures_total(loop.write_failures.load(std::memory_order_relaxed));
   d.deadline_missed_total(deadline.missed.load(std::memory_order_relaxed));
@@ -190,6 +191,8 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
   DiagnosticsAccumulator acc;
   acc.reset(start_ns);
   std::int64_t last_arrival_ns = 0;
+  const int publish_divider = std::max(1, loop.setup.config.output.publish_divider);
+  int until_publish = 1;  // the first estimate is published
   for (;;) {
     const auto st = source.read(sample);
     if (st == drivers::ReadStatus::timeout) continue;
@@ -206,11 +209,15 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
       spdlog::info("axis '{}': test hook: stall over", loop.setup.config.name);
     }
     const core::EncoderEstimate& est = pipeline.step(sample);
-    fill_state(est, loop.setup.config, ++sequence, state);
-    state.acceleration_std_mps2(est.acceleration_std_mps2);
-    state.source_time_ns(handover_rt_ns);
-    state.publish_time_ns(clock_ns(CLOCK_REALTIME));
-    if (!writer.write(loop.slot, state)) loop.write_failures.fetch_add(1, std::memory_order_relaxed);
+    if (--until_publish == 0) {  // output.publish_divider: every Nth estimate is published
+      until_publish = publish_divider;
+      fill_state(est, loop.setup.config, ++sequence, state);
+      state.acceleration_std_mps2(est.acceleration_std_mps2);
+      state.source_time_ns(handover_rt_ns);
+      state.publish_time_ns(clock_ns(CLOCK_REALTIME));
+      if (!writer.write(loop.slot, state)) loop.write_failures.fetch_add(1, std::memory_order_relaxed);
+      loop.published.fetch_add(1, std::memory_order_relaxed);
+    }
     loop.samples.fetch_add(1, std::memory_order_relaxed);
     if (est.samples_skipped) loop.skipped.fetch_add(est.samples_skipped, std::memory_order_relaxed);
     loop.position_m.store(est.position_m, std::memory_order_relaxed);
@@ -481,14 +488,17 @@ int run_command(const RunOptions& options) {
     }
     for (auto& loop : loops) {
       const auto& c = state_writer.counters(loop->slot);
-      spdlog::info("axis '{}': {} samples, {} diagnostics, offered deadline missed {} times in {} episode(s)",
-                   loop->setup.config.name, loop->samples.load(), loop->diagnostics_published.load(), c.missed.load(),
-                   c.episodes.load());
+      spdlog::info("axis '{}': {} samples estimated, {} published, {} diagnostics, offered deadline missed {} times "
+                   "in {} episode(s)",
+                   loop->setup.config.name, loop->samples.load(), loop->published.load(),
+                   loop->diagnostics_published.load(), c.missed.load(), c.episodes.load());
+      const std::string driver_stats = loop->setup.source->stats();
+      if (!driver_stats.empty()) spdlog::info("axis '{}': driver: {}", loop->setup.config.name, driver_stats);
     }
     spdlog::info("published {} samples; offered deadline missed {} times",
                  [&] {
                    std::uint64_t n = 0;
-                   for (auto& l : loops) n += l->samples.load();
+                   for (auto& l : loops) n += l->published.load();
                    return n;
                  }(),
                  state_writer.deadline_missed_total());

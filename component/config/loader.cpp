@@ -879,6 +879,7 @@ class MachineLoader {
                  format_number(x);
         return std::string();
       });
+      deadline_ms_ = cfg.dds.deadline_ms;
       const Value profiles = dds.value("profiles_file");
       if (profiles.present()) referenced_file(profiles, cfg.dds.profiles_file);
       const Value stats = dds.value("statistics");
@@ -1055,6 +1056,18 @@ class MachineLoader {
         return (d == 1 || d == -1) ? std::string() : "must be 1 or -1, got " + std::to_string(d);
       });
       out.get("preset_counts", axis.output.preset_counts);
+      // The offered deadline must cover at least two published periods, else it is
+      // missed by design.
+      const double rate_hz = current_motor_ && current_motor_->ok ? current_motor_->motor.sample_rate_hz : 0.0;
+      const double deadline_ms = deadline_ms_;
+      out.get("publish_divider", axis.output.publish_divider, Check<int>([rate_hz, deadline_ms](const int& n) {
+                if (n < 1 || n > 1000) return "must be in [1, 1000], got " + std::to_string(n);
+                if (rate_hz > 0.0 && 2.0 * 1000.0 * n / rate_hz > deadline_ms)
+                  return "publishes every " + format_number(1000.0 * n / rate_hz) + " ms at " +
+                         format_number(rate_hz) + " Hz: the offered deadline (dds.deadline_ms = " +
+                         format_number(deadline_ms) + ") must be at least two published periods";
+                return std::string();
+              }));
     }
     {
       Map h = a.map("homing");
@@ -1158,6 +1171,7 @@ class MachineLoader {
     }
   }
   const MotorEntry* current_motor_ = nullptr;  // the axis being read, for cross-checks
+  double deadline_ms_ = 0.0;                   // dds.deadline_ms, for the axes' cross-checks
   // ---- end socketcan ----
 
   /// Injected sensor faults: a list of {kind, sensor, start_s, end_s, magnitude}.

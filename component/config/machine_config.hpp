@@ -37,6 +37,10 @@ struct OutputConfig {
   double counts_per_m = 1e7;  ///< 0.1 um per count
   int direction = 1;          ///< +1 or -1
   std::int64_t preset_counts = 0;
+  /// Publish every Nth estimate (1 = every sensor sample). The estimator still runs on
+  /// every sample; this matches the stream to a drive whose control loop is slower than
+  /// the sensor rate, and divides the DDS cost per axis by N.
+  int publish_divider = 1;
 };
 
 /// How the axis learns which magnet period it is in at start-up.

@@ -90,7 +90,7 @@ class SocketCanSource final : public drivers::SensorSource {
   /// True while the socket is open and bound (false while the interface is down/gone).
   bool connected() const { return connected_.load(std::memory_order_relaxed); }
   /// One line with every counter, for logs.
-  std::string stats() const;
+  std::string stats() const override;
 
   const SocketCanOptions& options() const { return opt_; }
 

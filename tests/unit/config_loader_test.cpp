@@ -670,5 +670,34 @@ TEST(ConfigShipped, EmbeddedDefaultEqualsOnDiskFiles) {
   }
 }
 
+TEST(ConfigLoader, PublishDividerMustLeaveTheDeadlineTwoPublishedPeriods) {
+  TempDir dir;
+  dir.write("m.yaml", std::string(kMotor) + "sample_rate_hz: 4000\n");
+  const auto ok = dir.write("ok.yaml",
+                            "dds: {deadline_ms: 5}\n"
+                            "axes:\n"
+                            "  - name: x\n"
+                            "    motor: m.yaml\n"
+                            "    output: {publish_divider: 8}\n");
+  const LoadResult good = load_machine_file(ok);
+  ASSERT_TRUE(good.ok()) << to_string(good.errors);
+  EXPECT_EQ(good.config.axes[0].output.publish_divider, 8);
+
+  const auto bad = dir.write("bad.yaml",
+                             "dds: {deadline_ms: 5}\n"                  // 1
+                             "axes:\n"                                  // 2
+                             "  - name: x\n"                            // 3
+                             "    motor: m.yaml\n"                      // 4
+                             "    output: {publish_divider: 12}\n"      // 5
+                             "  - name: y\n"                            // 6
+                             "    id: 2\n"                              // 7
+                             "    motor: m.yaml\n"                      // 8
+                             "    output: {publish_divider: 0}\n");     // 9
+  const LoadResult r = load_machine_file(bad);
+  EXPECT_EQ(r.errors.size(), 2u) << to_string(r.errors);
+  expect_error(r, bad, 5, 31, "axes[0].output.publish_divider", "at least two published periods");
+  expect_error(r, bad, 9, 31, "axes[1].output.publish_divider", "must be in [1, 1000], got 0");
+}
+
 }  // namespace
 }  // namespace ve::config

@@ -10,7 +10,9 @@ set -eu
 CACHE=${1:?usage: prepare.sh CACHE_DIR}
 mkdir -p "$CACHE"
 CACHE=$(cd "$CACHE" && pwd)
-if [ -f "$CACHE/ready" ] && [ -f "$CACHE/vmlinuz" ] && [ -f "$CACHE/initramfs.gz" ]; then exit 0; fi
+# The cache is stamped with this script's hash: an edited guest init rebuilds the initramfs.
+STAMP=$(sha256sum "$0" | cut -c1-16)
+if [ "$(cat "$CACHE/ready" 2>/dev/null)" = "$STAMP" ] && [ -f "$CACHE/vmlinuz" ] && [ -f "$CACHE/initramfs.gz" ]; then exit 0; fi
 
 for tool in qemu-system-x86_64 busybox depmod dpkg-deb; do
   command -v "$tool" >/dev/null 2>&1 || { echo "SKIP: $tool not found (apt-get install qemu-system-x86 busybox-static kmod)"; exit 77; }
@@ -57,7 +59,7 @@ mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev 2>
 for m in $(cat /modules/order); do insmod /modules/$m.ko || echo "VMINIT: insmod $m failed"; done
 mount -t 9p -o trans=virtio,version=9p2000.L,msize=262144 hostroot /host || { echo "VMINIT: 9p mount failed"; poweroff -f; }
 mount -t proc proc /host/proc; mount -t sysfs sys /host/sys; mount -t devtmpfs dev /host/dev 2>/dev/null || mount --bind /dev /host/dev
-mount -t tmpfs tmp /host/dev/shm 2>/dev/null
+mkdir -p /host/dev/shm && mount -t tmpfs tmp /host/dev/shm 2>/dev/null
 ip link set lo up
 ip link add dev vcan0 type vcan && ip link set vcan0 mtu 72 && ip link set up vcan0
 ip link add dev vcan1 type vcan && ip link set up vcan1
@@ -73,4 +75,4 @@ poweroff -f
 INIT
 chmod +x "$ROOT/init"
 (cd "$ROOT" && find . | "$BUSYBOX" cpio -o -H newc 2>/dev/null | gzip -1 > "$CACHE/initramfs.gz")
-touch "$CACHE/ready"
+echo "$STAMP" > "$CACHE/ready"

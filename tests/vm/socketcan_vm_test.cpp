@@ -497,6 +497,29 @@ TEST(SocketCanGuest, EmulatorToDdsChainAccuracy) {
     const char* layout;
     int domain;
   };
+  // The guest is emulated (no KVM): DDS costs it far more per sample than a real
+  // host, and `run` publishing all 4000 samples/s cannot keep up with the bus there
+  // (about 300-1700 of them processed per second in our runs). So here the axis
+  // publishes every 4th estimate (output.publish_divider), the estimator still
+  // running on every sample: a copy of the machine file with that one setting.
+  auto with_divider = [](const std::string& machine_rel) {
+    std::ifstream in(kSrc + "/" + machine_rel);
+    std::stringstream text;
+    text << in.rdbuf();
+    std::string yaml = text.str();
+    const std::string dir = kSrc + "/" + machine_rel.substr(0, machine_rel.rfind('/')) + "/";
+    for (std::size_t at = 0; (at = yaml.find("../", at)) != std::string::npos;) {
+      yaml.replace(at, 3, dir + "../");
+      at += dir.size() + 3;
+    }
+    const std::string key = "      preset_counts: 0\n";
+    const auto at = yaml.find(key);
+    EXPECT_NE(at, std::string::npos) << machine_rel;
+    if (at != std::string::npos) yaml.insert(at + key.size(), "      publish_divider: 4\n");
+    const std::string out = "divider4-" + machine_rel.substr(machine_rel.rfind('/') + 1);
+    std::ofstream(out) << yaml;
+    return out;
+  };
   for (const Case c : {Case{"config/machines/can-classic.yaml", "config/can/classic-4hall.yaml", 91},
                        Case{"config/machines/can-fd.yaml", "config/can/fd-4hall-x8.yaml", 92}}) {
     app::DdsOptions o;
@@ -512,7 +535,7 @@ TEST(SocketCanGuest, EmulatorToDdsChainAccuracy) {
         std::lock_guard<std::mutex> lock(m);
         got.push_back(s);
       });
-      const pid_t run = spawn({kBin, "run", "--config", kSrc + "/" + c.machine, "--domain", std::to_string(c.domain),
+      const pid_t run = spawn({kBin, "run", "--config", with_divider(c.machine), "--domain", std::to_string(c.domain),
                                "--duration", "6", "--wait-for-subscriber", "20", "--status-period", "5"});
       ASSERT_GT(run, 0);
       // The node starts once the encoder publishes to us.
@@ -537,10 +560,12 @@ TEST(SocketCanGuest, EmulatorToDdsChainAccuracy) {
       const double t_settled = tx.front().first + 0.2;
       tx.erase(tx.begin(), std::find_if(tx.begin(), tx.end(), [&](const auto& p) { return p.first >= t_settled; }));
     }
-    // Under software emulation (TCG) the guest does not publish all 4000 samples/s
-    // over DDS (1,400 to 5,000 of 14,000 arrived in our runs, fewer on a loaded
-    // host); the in-process chain tests above check that none is lost before DDS.
-    // What this test checks is that what arrives over DDS is right.
+    // Under software emulation the estimator falls behind the bus (about 2,600 of
+    // 4,000 samples/s in our runs, the rest still queued in the driver's ring when the
+    // node stops; no frame lost: the driver's counters are in the log), and best-effort
+    // DDS between two emulated processes drops some of what is published (1,700 to
+    // 1,900 of 2,000 to 2,300 arrived). What this test checks is that what arrives over
+    // DDS is right.
     ASSERT_GT(tx.size(), 500u) << c.machine << ": " << got.size() << " samples received, " << valid << " VALID";
     const double rms = line_fit_rms(tx);
     std::printf("dds chain %s: %zu samples received, %llu VALID+HOMED; error about the constant-velocity line "
