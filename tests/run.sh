@@ -1,12 +1,20 @@
 #!/usr/bin/env bash
 # The test command: set up, build, fuzz every parser for a bounded time, then run
 # every test (unit, real-process DDS, Cyclone interop, SocketCAN in a VM).
+# A failing stage stops the run there, its report last.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash deploy/setup.sh
-bash deploy/build.sh
+stage() {
+  local name="$1" t0=$SECONDS
+  shift
+  echo "== $name"
+  "$@"
+  echo "== $name: done in $((SECONDS - t0)) s"
+}
+stage setup bash deploy/setup.sh
+stage build bash deploy/build.sh
 # Every parser under libFuzzer (ASan + UBSan) for a bounded time.
-bash tests/fuzz/run.sh "${VE_FUZZ_SECONDS:-20}"
+stage fuzz bash tests/fuzz/run.sh "${VE_FUZZ_SECONDS:-20}"
 # Shared-memory segments left by a crashed DDS process would confuse the next run.
 fastdds shm clean >/dev/null 2>&1 || true
 cd build

@@ -312,9 +312,9 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     const int reach = static_cast<int>(std::ceil(cfg.fill_uncovered_ends_m / table.step_m));
     for (int s = 0; s < table.sensors; ++s) {
       double* row = table.v.data() + static_cast<std::size_t>(s) * table.points;
-      for (int k = reach; k >= 0; --k)
+      for (int k = std::min(reach, table.points - 1); k >= 0; --k)
         if (!std::isfinite(row[k]) && k + per_pitch < table.points) row[k] = row[k + per_pitch];
-      for (int k = table.points - 1 - reach; k < table.points; ++k)
+      for (int k = std::max(0, table.points - 1 - reach); k < table.points; ++k)
         if (k >= per_pitch && !std::isfinite(row[k])) row[k] = row[k - per_pitch];
       for (int k = 0; k < table.points; ++k)
         if (!std::isfinite(row[k])) {

@@ -26,9 +26,29 @@ HallTable extended_nominal_table(const MotorConfig& motor, int points_per_pitch,
   return t;
 }
 
+/// How far a sample's readings are from the table at x, leaving out what all
+/// sensors share (an error in the coil field's common mode must not decide which
+/// magnet period the carriage is in).
+double differential_chi2(const HallTable& t, const RawSample& s, double common_mode, double x) {
+  double r[kMaxHalls];
+  int n = 0;
+  double mean = 0.0;
+  for (int i = 0; i < t.sensors && i < s.hall_count && n < kMaxHalls; ++i) {
+    if (!(s.hall_valid_mask >> i & 1u)) continue;
+    r[n] = s.hall_v[i] - common_mode - t.value(i, x);
+    mean += r[n++];
+  }
+  if (n == 0) return 0.0;
+  mean /= n;
+  double sum = 0.0;
+  for (int k = 0; k < n; ++k) sum += (r[k] - mean) * (r[k] - mean);
+  return sum;
+}
+
 /// Hall positions of one segment, tracked sample to sample. The first sample is
 /// placed by a search over [lo, hi]; among the few best candidates the one whose
-/// first samples track with the smallest chi-square wins.
+/// first samples (up to 0.5 s: the carriage moves over a few magnets' signatures)
+/// track with the smallest differential chi-square wins.
 void solve_positions(const HallArray& array, const std::vector<RawSample>& s, const std::vector<double>& common_mode,
                      double lo, double hi, std::vector<double>& x) {
   x.assign(s.size(), 0.0);
@@ -44,26 +64,21 @@ void solve_positions(const HallArray& array, const std::vector<RawSample>& s, co
     double best = std::numeric_limits<double>::infinity();
     int best_k = p0;
     for (int k = p0; k < std::min(k1 + 1, p0 + per_pitch); ++k) {
-      double cost = 0.0;
-      for (int i = 0; i < t.sensors && i < s[0].hall_count; ++i) {
-        if (!(s[0].hall_valid_mask >> i & 1u)) continue;
-        const double r = s[0].hall_v[i] - common_mode[0] - t.v[static_cast<std::size_t>(i) * t.points + k];
-        cost += r * r;
-      }
+      const double cost = differential_chi2(t, s[0], common_mode[0], t.start_m + k * t.step_m);
       if (cost < best) best = cost, best_k = k;
     }
     cand.emplace_back(best, t.start_m + best_k * t.step_m);
   }
   std::sort(cand.begin(), cand.end());
-  if (cand.size() > 6) cand.resize(6);
-  const std::size_t probe = std::min<std::size_t>(s.size(), 400);
+  if (cand.size() > 16) cand.resize(16);
+  const std::size_t probe = std::min<std::size_t>(s.size(), 2000);
   double best_score = std::numeric_limits<double>::infinity();
   double start = cand.empty() ? lo : cand.front().second;
   for (const auto& c : cand) {
     double prev = c.second, prev2 = c.second, score = 0.0;
     for (std::size_t i = 0; i < probe; ++i) {
       const HallFix f = array.solve(s[i], 2.0 * prev - prev2, common_mode[i]);
-      score += f.ok ? f.chi2 : 1e6;
+      score += f.sensors_used > 0 ? differential_chi2(t, s[i], common_mode[i], f.position_m) : 1e6;
       prev2 = prev;
       prev = f.position_m;
     }
@@ -174,6 +189,125 @@ double line_at(const Pass& p, std::size_t i, double ts) { return p.c + p.v * (st
 
 double accel_reading(const RawSample& s) { return s.accel_mps2 - (s.accel_base_valid ? s.accel_base_mps2 : 0.0); }
 
+struct AccelFit {
+  bool ok = false;
+  double scale = 1.0, bias = 0.0, delay_s = 0.0, residual_mps2 = 0.0;
+  long dynamic_samples = 0;
+};
+
+/// The accelerometer against the self-made position: reading(t) = scale * a(t - delay) + bias.
+/// Both sides go through the same filter: the position's acceleration is the
+/// Savitzky-Golay second derivative of the position, the accelerometer's is the same
+/// derivative of its reading integrated twice. So the filter changes neither the
+/// scale nor the delay, and the accelerometer side, which is the one shifted by the
+/// trial delay, is smooth: interpolating it between samples does not lower its noise
+/// (which would favour delays half a sample off). Samples whose position was itself
+/// bridged with the accelerometer (`bridged`) are left out: they would only find the
+/// accelerometer's own noise, at the delay the bridge used.
+AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<std::vector<double>>& xr,
+                           const std::vector<std::vector<char>>& bridged, const std::vector<double>& ts,
+                           const IdentificationConfig& ic) {
+  AccelFit fit;
+  const int m = ic.derivative_half_window;
+  const std::size_t ng = segments.size();
+  std::vector<std::vector<double>> ar(ng), az(ng);
+  std::vector<std::vector<char>> use(ng);
+  std::vector<double> v;
+  std::vector<char> ok_r, ok_z;
+  for (std::size_t g = 0; g < ng; ++g) {
+    const auto& s = segments[g].samples;
+    const std::size_t n = s.size();
+    use[g].assign(n, 0);
+    if (n < static_cast<std::size_t>(2 * m + 8)) continue;
+    // Readings integrated twice, centred: zz[i+1] - 2 zz[i] + zz[i-1] = ts^2 z[i].
+    std::vector<double> zz(n, 0.0);
+    std::vector<long> bad(n + 1, 0);  // prefix count of bridged or invalid samples
+    double vel = 0.0, last = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (i > 0) zz[i] = zz[i - 1] + vel * ts[g];
+      if (s[i].accel_valid) last = accel_reading(s[i]);
+      vel += last * ts[g];
+      bad[i + 1] = bad[i] + ((!s[i].accel_valid || (!bridged[g].empty() && bridged[g][i])) ? 1 : 0);
+    }
+    differentiate(xr[g], ts[g], m, v, ar[g], ok_r);
+    differentiate(zz, ts[g], m, v, az[g], ok_z);
+    const auto reach = static_cast<std::size_t>(m) + 2 +
+                       static_cast<std::size_t>(std::ceil(ic.max_accel_delay_s / ts[g]));
+    for (std::size_t i = reach; i + reach < n; ++i) {
+      if (!ok_r[i] || bad[i + reach + 1] != bad[i - reach]) continue;
+      use[g][i] = 1;
+      if (std::abs(ar[g][i]) >= ic.dynamic_min_accel_mps2) ++fit.dynamic_samples;
+    }
+  }
+  if (fit.dynamic_samples < ic.dynamic_min_samples) return fit;
+  const double ts0 = ts.empty() ? 0.0 : ts[0];
+  const double step = ts0 / 10.0;
+  const int n_delays = static_cast<int>(std::floor(ic.max_accel_delay_s / step)) + 1;
+  std::vector<double> scan(static_cast<std::size_t>(n_delays), std::numeric_limits<double>::infinity());
+  double best = std::numeric_limits<double>::infinity();
+  int best_i = -1;
+  for (int di = 0; di < n_delays; ++di) {
+    const double delay = di * step;
+    double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
+    long cnt = 0;
+    for (std::size_t g = 0; g < ng; ++g) {
+      const double shift = delay / ts[g];
+      const auto whole = static_cast<std::size_t>(std::floor(shift));
+      const double frac = shift - static_cast<double>(whole);
+      const auto& a = ar[g];
+      const auto& z = az[g];
+      for (std::size_t i = 0; i + whole + 1 < a.size(); ++i) {
+        // Scale and delay from the fast motion only: the many slow samples carry
+        // no timing, only the reading's noise, which the interpolation lowers at
+        // fractional delays and so would pull the delay.
+        if (!use[g][i] || std::abs(a[i]) < ic.dynamic_min_accel_mps2) continue;
+        const double x = a[i];
+        const double y = (1.0 - frac) * z[i + whole] + frac * z[i + whole + 1];  // the reading at t + delay
+        sx += x, sy += y, sxx += x * x, sxy += x * y, syy += y * y, ++cnt;
+      }
+    }
+    if (cnt < 3) continue;
+    const double mx = sx / cnt, my = sy / cnt, vxx = sxx / cnt - mx * mx, vxy = sxy / cnt - mx * my,
+                 vyy = syy / cnt - my * my;
+    if (!(vxx > 0.0)) continue;
+    const double rms = std::sqrt(std::max(0.0, vyy - vxy * vxy / vxx));
+    scan[static_cast<std::size_t>(di)] = rms;
+    if (rms < best) {
+      best = rms, best_i = di;
+      fit.scale = vxy / vxx;
+      fit.bias = my - fit.scale * mx;
+    }
+  }
+  if (best_i < 0) return fit;
+  fit.delay_s = best_i * step;
+  if (best_i > 0 && best_i + 1 < n_delays) {
+    const double y0 = scan[static_cast<std::size_t>(best_i - 1)] * scan[static_cast<std::size_t>(best_i - 1)];
+    const double y1 = best * best;
+    const double y2 = scan[static_cast<std::size_t>(best_i + 1)] * scan[static_cast<std::size_t>(best_i + 1)];
+    const double curv = y0 - 2.0 * y1 + y2;
+    if (curv > 0.0) fit.delay_s += 0.5 * step * (y0 - y2) / curv;
+  }
+  // The bias over every usable sample (the slow passes too).
+  {
+    double sum = 0.0;
+    long cnt = 0;
+    for (std::size_t g = 0; g < ng; ++g) {
+      const double shift = fit.delay_s / ts[g];
+      const auto whole = static_cast<std::size_t>(std::floor(shift));
+      const double frac = shift - static_cast<double>(whole);
+      for (std::size_t i = 0; i + whole + 1 < ar[g].size(); ++i) {
+        if (!use[g][i]) continue;
+        sum += (1.0 - frac) * az[g][i + whole] + frac * az[g][i + whole + 1] - fit.scale * ar[g][i];
+        ++cnt;
+      }
+    }
+    if (cnt > 0) fit.bias = sum / static_cast<double>(cnt);
+  }
+  fit.residual_mps2 = best;
+  fit.ok = true;
+  return fit;
+}
+
 }  // namespace
 
 void table_geometry(const MotorConfig& motor, const HallTable& t, std::vector<double>& sensor_offset_m,
@@ -267,6 +401,8 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   const int iterations = std::max(1, cfg.iterations);
   std::size_t sweep_segment = ng;
   double accel_scale = 1.0, accel_lag_s = 0.0;  // the accelerometer relative to the Halls, as far as known
+  double accel_bias = std::numeric_limits<double>::quiet_NaN();
+  std::vector<std::vector<char>> bridged(ng);  // positions made with the accelerometer (not fitted against it)
   double coil_found = std::numeric_limits<double>::quiet_NaN();
   double best_residual_mv = std::numeric_limits<double>::infinity(), best_hall_delay = 0.0, best_join_m = 0.0;
   Calibration best_cal;
@@ -280,6 +416,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     std::vector<std::vector<Pass>> passes(ng);
     for (std::size_t g = 0; g < ng; ++g) {
       const auto& s = work[g].samples;
+      bridged[g].assign(s.size(), 0);
       std::vector<double> cm(s.size());
       for (std::size_t i = 0; i < s.size(); ++i) cm[i] = coil * accel[g][i];
       // First iteration: any period will do (relative positions). Later: the whole table.
@@ -340,11 +477,19 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
             if (s[i].accel_valid) sum += accel_reading(s[i]), ++n;
         if (n > 0) bias = sum / static_cast<double>(n);
       }
-      const long shift = std::lround(accel_lag_s / ts[g]);
+      if (std::isfinite(accel_bias)) bias = accel_bias;
+      // The acceleration at sample i is read accel_lag_s later: interpolated between samples.
+      auto reading_at = [&](long j) {
+        const auto& smp = s[static_cast<std::size_t>(std::clamp(j, 0L, static_cast<long>(s.size()) - 1))];
+        return smp.accel_valid ? accel_reading(smp) : bias;
+      };
+      const double lag = accel_lag_s / ts[g];
+      const auto lag_whole = static_cast<long>(std::floor(lag));
+      const double lag_frac = lag - static_cast<double>(lag_whole);
       auto acc = [&](std::size_t i) {
-        const long j = std::clamp(static_cast<long>(i) + shift, 0L, static_cast<long>(s.size()) - 1);
-        const auto& smp = s[static_cast<std::size_t>(j)];
-        return smp.accel_valid ? (accel_reading(smp) - bias) / accel_scale : 0.0;
+        const long j = static_cast<long>(i) + lag_whole;
+        const double z = (1.0 - lag_frac) * reading_at(j) + lag_frac * reading_at(j + 1);
+        return (z - bias) / accel_scale;
       };
       const auto max_gap = static_cast<std::size_t>(1.0 / ts[g]);
       for (std::size_t q = 0; q <= ps.size(); ++q) {
@@ -358,6 +503,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         // positions, shifted linearly; the start and the end of a recording (a pass
         // on one side only) are bridged by the accelerometer from the line.
         if (has_before != has_after && to - from <= max_gap) {
+          for (std::size_t i = from; i < to; ++i) bridged[g][i] = 1;
           std::vector<double> xf(to - from, 0.0), xb(to - from, 0.0);
           if (has_before) {
             const Pass& p = ps[q - 1];
@@ -389,6 +535,9 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
           }
           continue;
         }
+        // Hall positions joined to the lines: good for the table, but where the
+        // two meet their acceleration is not the carriage's; not fitted against.
+        for (std::size_t i = from; i < to; ++i) bridged[g][i] = has_before || has_after ? 1 : 0;
         const double m0 = has_before ? mismatch(ps[q - 1], true) : 0.0;
         const double m1 = has_after ? mismatch(ps[q], false) : 0.0;
         if (has_before && has_after) {
@@ -487,6 +636,20 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       error = "iteration " + std::to_string(it + 1) + ", slow passes" + where + ": " + error;
       return false;
     }
+    // The accelerometer, fitted here rather than by the identification: it must
+    // leave out the stretches bridged with it, and its regressor is noisy.
+    if (it > 0) {
+      std::vector<std::vector<double>> xr(ng);
+      for (std::size_t g = 0; g < ng; ++g) xr[g] = work[g].reference_m;
+      const AccelFit af = fit_accelerometer(segments, xr, bridged, ts, ic);
+      if (af.ok) {
+        cal.model.accel_scale = idrep.accel_scale = af.scale;
+        cal.model.accel_bias_mps2 = idrep.accel_bias_mps2 = af.bias;
+        cal.model.accel_delay_s = idrep.accel_delay_s = af.delay_s;
+        idrep.accel_fit_residual_mps2 = af.residual_mps2;
+        accel_bias = af.bias;
+      }
+    }
     table = cal.table;
     coil = std::isfinite(coil_found) ? coil_found : cal.model.coil_field_v_per_mps2;
     cal.model.coil_field_v_per_mps2 = coil;
@@ -512,7 +675,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     }
     if (idrep.dynamic_samples >= ic.dynamic_min_samples && cal.model.accel_scale > 0.8 && cal.model.accel_scale < 1.2) {
       accel_scale = cal.model.accel_scale;
-      accel_lag_s = std::clamp(cal.model.accel_delay_s - hall_delay, 0.0, ic.max_accel_delay_s);
+      accel_lag_s = std::clamp(cal.model.accel_delay_s - hall_delay, -ic.max_accel_delay_s, ic.max_accel_delay_s);
     }
     if (accel_given && idrep.dynamic_samples >= ic.dynamic_min_samples) {
       // The accelerometer lags the estimate by its delay minus the Halls' plus the shift applied.

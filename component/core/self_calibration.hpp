@@ -16,8 +16,13 @@
 //     turnarounds, the fast motion) positions are the Hall positions solved with
 //     the current table, shifted to join the passes continuously.
 //  3. That position estimate stands in for the ruler in identify_with_reference
-//     (tables, coil field, accelerometer scale, bias and delay, vibration); its
-//     tables and coil field re-solve the Hall positions, and the loop repeats.
+//     (tables, coil field, vibration); its tables and coil field re-solve the Hall
+//     positions, and the loop repeats. The accelerometer's scale, bias and delay
+//     are fitted here instead, against the Hall positions of the fast motion only
+//     (never against stretches bridged with the accelerometer itself), with both
+//     sides through the same derivative filter.
+//  The fast segment is placed on the table by the magnets' signatures with the
+//  common mode (coil field) left out, over its first 0.5 s.
 //
 // What it cannot know (and says so):
 //  - The absolute zero. Position 0 is where the carriage stood at the start of the

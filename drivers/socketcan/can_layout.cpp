@@ -298,10 +298,13 @@ int encode(const CanLayout& l, const core::RawSample* samples, std::uint64_t seq
   }
   if (l.node_timestamp.present) {
     const SignalSpec& t = l.node_timestamp;
-    // The node clock wraps: keep the low bits rather than saturating.
+    // The node clock wraps: keep the low bits rather than saturating. Taken in floating
+    // point (fmod is exact), as the count may be far beyond 64 bits; not finite -> 0.
     const double r = std::round((node_time_us - t.offset) / t.scale);
-    const std::uint64_t raw = static_cast<std::uint64_t>(static_cast<std::int64_t>(r)) &
-                              ((std::uint64_t{1} << t.length) - 1);
+    const double wrap = std::ldexp(1.0, t.length);
+    double low = std::isfinite(r) ? std::fmod(r, wrap) : 0.0;
+    if (low < 0.0) low += wrap;
+    const std::uint64_t raw = static_cast<std::uint64_t>(low);
     set_bits(d, t.start_bit, t.length, t.order, raw);
   }
   for (int k = 0; k < l.samples_per_frame; ++k) {

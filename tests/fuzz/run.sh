@@ -8,7 +8,7 @@ SECONDS_PER_TARGET="${1:-20}"
 BUILD=build-fuzz
 CC=clang CXX=clang++ cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DVE_FUZZ=ON \
   -DVE_BUILD_BENCHMARKS=OFF >/dev/null
-targets=(fuzz_machine_config fuzz_calibration_file fuzz_raw_log)
+targets=(fuzz_machine_config fuzz_calibration_file fuzz_raw_log fuzz_can_layout fuzz_can_frame)
 cmake --build "$BUILD" --target "${targets[@]}"
 status=0
 for t in "${targets[@]}"; do
@@ -17,6 +17,8 @@ for t in "${targets[@]}"; do
     fuzz_machine_config) seeds=tests/fuzz/corpus/config ;;
     fuzz_calibration_file) seeds=tests/fuzz/corpus/calibration ;;
     fuzz_raw_log) seeds=tests/fuzz/corpus/raw_log ;;
+    fuzz_can_layout) seeds=tests/fuzz/corpus/can_layout ;;
+    fuzz_can_frame) seeds=tests/fuzz/corpus/can_frame ;;
   esac
   work="$BUILD/corpus/$corpus_name"
   mkdir -p "$work"
