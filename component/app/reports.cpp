@@ -46,8 +46,8 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
   if (self != nullptr) {
     const auto& s = *self;
     line("Without a reference (the Halls, the accelerometer and the nominal pitch)\n");
-    line("  position 0 is where the carriage stood at the start of the sweep; the scale is the nominal pitch\n");
-    line("  averaged over the travel\n");
+    line("  position 0: %s\n", s.zero_definition.c_str());
+    line("  the scale is the nominal pitch averaged over the travel\n");
     line("  slow passes: %d forward at %.3f mm/s, %d backward at %.3f mm/s; swept %.4f mm = %d whole periods\n",
          s.passes_forward, s.forward_speed_mps * 1e3, s.passes_backward, s.backward_speed_mps * 1e3, s.swept_m * 1e3,
          s.periods);

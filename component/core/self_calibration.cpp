@@ -355,6 +355,26 @@ void table_geometry(const MotorConfig& motor, const HallTable& t, std::vector<do
   }
 }
 
+bool table_home(const HallTable& t, double from_m, double& home_m, double& rising_m, double& falling_m) {
+  if (!t.valid() || t.sensors < 1) return false;
+  const double* row = t.v.data();
+  const double mid = 0.5 * (*std::min_element(row, row + t.points) + *std::max_element(row, row + t.points));
+  bool have_rising = false;
+  for (int k = 0; k + 1 < t.points; ++k) {
+    const double a = row[k] - mid, b = row[k + 1] - mid;
+    if ((a < 0) == (b < 0)) continue;
+    const double x = t.start_m + (k + a / (a - b)) * t.step_m;
+    if (!have_rising) {
+      if (a < 0 && x >= from_m) rising_m = x, have_rising = true;
+    } else if (a >= 0) {
+      falling_m = x;
+      home_m = 0.5 * (rising_m + falling_m);
+      return true;
+    }
+  }
+  return false;
+}
+
 bool identify_without_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
                                 const SelfCalibrationConfig& cfg, Calibration& out, SelfCalibrationReport& rep,
                                 std::string& error) {
@@ -405,6 +425,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   std::vector<std::vector<char>> bridged(ng);  // positions made with the accelerometer (not fitted against it)
   double coil_found = std::numeric_limits<double>::quiet_NaN();
   double best_residual_mv = std::numeric_limits<double>::infinity(), best_hall_delay = 0.0, best_join_m = 0.0;
+  double sweep_lo = 0.0, best_sweep_lo = 0.0;  // the lowest position of the sweep (from its start)
   Calibration best_cal;
   IdentificationReport best_idrep;
   for (int it = 0; it < iterations; ++it) {
@@ -579,7 +600,8 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     rep.join_mismatch_m = joins > 0 ? std::sqrt(join_sq / joins) : 0.0;
     rep.pass_line_residual_m = line_n > 0 ? std::sqrt(line_sq / line_n) : 0.0;
 
-    // Zero: where the carriage stood at the start of the first slow pass's segment.
+    // Working zero (while iterating): where the carriage stood at the start of the
+    // first slow pass's segment. The calibration's own zero is home, set at the end.
     if (it == 0) {
       for (std::size_t g = 0; g < ng && sweep_segment == ng; ++g)
         if (!passes[g].empty()) sweep_segment = g;
@@ -600,6 +622,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       const auto& xr = work[sweep_segment].reference_m;
       lo = *std::min_element(xr.begin(), xr.end());
       hi = *std::max_element(xr.begin(), xr.end());
+      sweep_lo = lo;
     }
     rep.swept_m = hi - lo;
     rep.periods = static_cast<int>(std::floor(rep.swept_m / motor.magnet_pitch_m + 1e-6));
@@ -672,6 +695,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       best_idrep = idrep;
       best_hall_delay = hall_delay;
       best_join_m = rep.join_mismatch_m;
+      best_sweep_lo = sweep_lo;
     }
     if (idrep.dynamic_samples >= ic.dynamic_min_samples && cal.model.accel_scale > 0.8 && cal.model.accel_scale < 1.2) {
       accel_scale = cal.model.accel_scale;
@@ -689,6 +713,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     hall_delay = best_hall_delay;
     rep.join_mismatch_m = best_join_m;
     rep.hall_delay_reproduced_s = idrep.hall_delay_s;
+    sweep_lo = best_sweep_lo;
   }
   out = cal;
   out.model.hall_delay_s = hall_delay;
@@ -698,6 +723,27 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   auto& r = rep.identification;
   r.hall_delay_s = hall_delay;
   r.accel_delay_s = out.model.accel_delay_s;
+  // Position 0 at home, a feature of the track (see the header): the table so far
+  // has its zero where the carriage stood when the sweep's recording started,
+  // reached only through the accelerometer bridged back from the first slow pass.
+  {
+    double home = 0.0, rising = 0.0, falling = 0.0;
+    if (table_home(out.table, sweep_lo + 0.25 * motor.magnet_pitch_m, home, rising, falling)) {
+      out.table.start_m -= home;
+      rep.home_from_sweep_start_m = home;
+      rep.home_rising_m = rising - home;
+      rep.home_falling_m = falling - home;
+      char line[256];
+      std::snprintf(line, sizeof line,
+                    "position 0 is home: the centre of sensor 0's first whole positive half-wave from the near end "
+                    "of the sweep (%.3f mm from where the sweep started)",
+                    home * 1e3);
+      rep.zero_definition = line;
+    } else {
+      rep.zero_definition = "position 0 is where the carriage stood at the start of the sweep (no home found)";
+      r.problems.push_back("sensor 0's table has no whole positive half-wave to home on");
+    }
+  }
   // The position residual in fast motion is against the self-made estimate, which
   // came from these Halls: it checks consistency, not accuracy.
   table_geometry(motor, out.table, rep.sensor_offset_m, rep.period_start_m, rep.period_pitch_m);

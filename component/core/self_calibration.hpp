@@ -25,8 +25,17 @@
 //  common mode (coil field) left out, over its first 0.5 s.
 //
 // What it cannot know (and says so):
-//  - The absolute zero. Position 0 is where the carriage stood at the start of the
-//    first slow pass's recording (normally one end of the travel).
+//  - The absolute zero: there is no reference mark. Position 0 is defined on the
+//    magnet track itself, as home: the centre of sensor 0's first whole positive
+//    half-wave from the near end of the sweep, i.e. the mean of its first rising
+//    crossing of its table's mid level at least a quarter pitch past the lowest
+//    position the sweep reached, and the falling crossing that follows (the mean
+//    does not move with the sensor's offset voltage). The table is expressed in
+//    that frame, so `run` with this calibration reports positions from home. The
+//    feature is a property of the track and the sensor, found from the slow pass
+//    only (no accelerometer is involved); where the carriage stood when the
+//    recording started is no longer the zero (reaching it needs the accelerometer
+//    bridged back from the first pass, good only to tens of um).
 //  - The absolute timing. Every sensor in the recording could lag by the same
 //    extra time and the recording would look the same, so only the accelerometer's
 //    delay relative to the Halls is measured. One delay must be given from the
@@ -87,6 +96,16 @@ struct SelfCalibrationReport {
   std::vector<double> period_pitch_m;
   /// Each sensor's position on the carriage relative to sensor 0 (from the tables) [m].
   std::vector<double> sensor_offset_m;
+  /// Home (position 0 of the calibration, see the top of this file) measured from
+  /// where the carriage stood at the start of the sweep's recording [m]: about where
+  /// to look for the feature on a machine; its accuracy is the accelerometer
+  /// bridge's (tens of um), the calibration's zero itself does not depend on it.
+  double home_from_sweep_start_m = 0.0;
+  /// Sensor 0's rising and falling mid-level crossings that define home, in the
+  /// calibration's frame [m] (their mean is 0).
+  double home_rising_m = 0.0, home_falling_m = 0.0;
+  /// One line saying what position 0 is, for the report.
+  std::string zero_definition;
   /// Where the Hall delay came from ("given", "from the accelerometer delay given", "assumed 0").
   std::string hall_delay_source;
   double hall_delay_reproduced_s = 0.0; ///< what forward/backward gave against the self-made position (a check)
@@ -99,6 +118,11 @@ struct SelfCalibrationReport {
 bool identify_without_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
                                 const SelfCalibrationConfig& config, Calibration& out, SelfCalibrationReport& report,
                                 std::string& error);
+
+/// Home on a table: the mean of sensor 0's first rising crossing of its row's
+/// mid level (0.5 (min + max)) at or after `from_m` and the falling crossing
+/// after it. False when the table has none.
+bool table_home(const HallTable& table, double from_m, double& home_m, double& rising_m, double& falling_m);
 
 /// Each sensor's offset on the carriage relative to sensor 0, and each magnet
 /// period's start and pitch, from a table's crossings of the mid level.
