@@ -84,10 +84,10 @@ put() {
 # ve/*: reading and writing need a grant. Each submessage (with the sample in it)
 # is encrypted with the sending endpoint's key, which only matched, permitted
 # endpoints receive: another participant of the domain cannot decrypt it, although
-# it holds the participant-level key. The payload is also signed end to end (SIGN,
-# AES-GMAC). Not ENCRYPT: Fast DDS then also protects the key (is_key_protected),
-# which changes every instance handle to an MD5 hash, and a writer that passes the
-# handle it computed without it (as StateWriter::write does) has every write refused.
+# it holds the participant-level key. The payload is also encrypted end to end
+# (ENCRYPT, AES-GCM). Fast DDS then also protects the key (is_key_protected), which
+# makes every instance handle an MD5 hash: writers must let write() compute the
+# handle (they do), never pass one computed without security.
 # Any other topic also needs a grant.
 put "$out/governance.xml" <<XML
 <?xml version="1.0" encoding="UTF-8"?>
@@ -111,7 +111,7 @@ put "$out/governance.xml" <<XML
           <enable_read_access_control>true</enable_read_access_control>
           <enable_write_access_control>true</enable_write_access_control>
           <metadata_protection_kind>ENCRYPT</metadata_protection_kind>
-          <data_protection_kind>SIGN</data_protection_kind>
+          <data_protection_kind>ENCRYPT</data_protection_kind>
         </topic_rule>
         <topic_rule>
           <topic_expression>*</topic_expression>
@@ -120,7 +120,7 @@ put "$out/governance.xml" <<XML
           <enable_read_access_control>true</enable_read_access_control>
           <enable_write_access_control>true</enable_write_access_control>
           <metadata_protection_kind>ENCRYPT</metadata_protection_kind>
-          <data_protection_kind>SIGN</data_protection_kind>
+          <data_protection_kind>ENCRYPT</data_protection_kind>
         </topic_rule>
       </topic_access_rules>
     </domain_rule>
