@@ -81,13 +81,18 @@ std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axi
 }
 
 core::PipelineConfig pipeline_config(const config::AxisConfig& axis, const core::Calibration& calibration,
-                                     bool calibrated) {
+                                     bool calibrated, const double* kept_position_m) {
   core::PipelineConfig p;
   p.motor = axis.motor;
   p.sensors = calibration.model;
   p.calibrated = calibrated;
   p.start_position_known = axis.homing.mode == config::HomingConfig::Mode::startup_position;
   p.start_position_m = axis.homing.position_m;
+  if (axis.homing.mode == config::HomingConfig::Mode::signature) {
+    p.signature_homing = calibrated;
+    p.start_position_known = kept_position_m != nullptr;
+    if (kept_position_m) p.start_position_m = *kept_position_m;
+  }
   return p;
 }
 
@@ -96,7 +101,8 @@ bool build_axis(const config::AxisConfig& axis, SourceTiming timing, AxisSetup& 
   if (!load_axis_calibration(axis, out.calibration, out.calibrated, error)) return false;
   out.source = make_source(axis, timing, error);
   if (!out.source) return false;
-  out.pipeline = std::make_unique<core::AxisPipeline>(pipeline_config(axis, out.calibration, out.calibrated),
+  out.pipeline = std::make_unique<core::AxisPipeline>(
+      pipeline_config(axis, out.calibration, out.calibrated),
                                                         out.calibration.table);
   return true;
 }

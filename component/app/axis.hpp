@@ -34,8 +34,10 @@ bool load_axis_calibration(const config::AxisConfig& axis, core::Calibration& ou
 std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axis, SourceTiming timing,
                                                    std::string& error);
 
+/// `kept_position_m`: signature homing, the position kept at the last clean shutdown
+/// (the axis starts homed there; its first motion checks it), or null.
 core::PipelineConfig pipeline_config(const config::AxisConfig& axis, const core::Calibration& calibration,
-                                     bool calibrated);
+                                     bool calibrated, const double* kept_position_m = nullptr);
 
 /// Everything for one axis; nullptr-free on success.
 bool build_axis(const config::AxisConfig& axis, SourceTiming timing, AxisSetup& out, std::string& error);

@@ -20,6 +20,7 @@
 #include "calibration_log.hpp"
 #include "calibration_service.hpp"
 #include "config/calibration_file.hpp"
+#include "config/kept_position.hpp"
 #include "config/loader.hpp"
 #include "core/status.hpp"
 #include "core/identification.hpp"
@@ -193,6 +194,7 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
   std::int64_t last_arrival_ns = 0;
   const int publish_divider = std::max(1, loop.setup.config.output.publish_divider);
   int until_publish = 1;  // the first estimate is published
+  std::uint32_t last_status = 0;
   for (;;) {
     const auto st = source.read(sample);
     if (st == drivers::ReadStatus::timeout) continue;
@@ -209,6 +211,19 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
       spdlog::info("axis '{}': test hook: stall over", loop.setup.config.name);
     }
     const core::EncoderEstimate& est = pipeline.step(sample);
+    if ((est.status ^ last_status) & core::status::kHomed) {
+      // Rare (start-up, a long gap): worth a line in the log.
+      if (est.status & core::status::kHomed) {
+        if (pipeline.signature_homing().state() == core::SignatureHoming::State::homed)
+          spdlog::info("axis '{}': homed by the magnet signature after {:.1f} mm of motion", loop.setup.config.name,
+                       pipeline.signature_homing().motion_m() * 1e3);
+        else
+          spdlog::info("axis '{}': homed", loop.setup.config.name);
+      } else {
+        spdlog::warn("axis '{}': not homed (position relative until homed again)", loop.setup.config.name);
+      }
+    }
+    last_status = est.status;
     if (--until_publish == 0) {  // output.publish_divider: every Nth estimate is published
       until_publish = publish_divider;
       fill_state(est, loop.setup.config, ++sequence, state);
@@ -290,6 +305,63 @@ bool stall_hook(const RunOptions& options, std::string& axis, double& after_s, d
 
 // ------------------------------------------------------------------- run
 
+namespace {
+
+/// Signature homing with a state file: start homed at the position kept at the last
+/// clean shutdown (the file is removed as it is read: a position is used once).
+void use_kept_position(AxisSetup& setup) {
+  const auto& axis = setup.config;
+  if (axis.homing.mode != config::HomingConfig::Mode::signature || axis.homing.state_file.empty() ||
+      !setup.calibrated)
+    return;
+  config::KeptPosition kept;
+  std::string why;
+  switch (config::take_kept_position(axis.homing.state_file, axis.name, axis.motor.name, setup.calibration.info.id, kept,
+                             why)) {
+    case config::KeptRead::none:
+      spdlog::info("axis '{}': no position kept from a clean shutdown; homing by the magnet signature on the "
+                   "first move",
+                   axis.name);
+      return;
+    case config::KeptRead::refused:
+      spdlog::warn("axis '{}': kept position not used: {}; homing by the magnet signature on the first move",
+                   axis.name, why);
+      return;
+    case config::KeptRead::ok: break;
+  }
+  if (kept.position_m < 0.0 || kept.position_m > axis.motor.travel_m) {
+    spdlog::warn("axis '{}': kept position {:.6f} m is outside the travel; homing by the magnet signature",
+                 axis.name, kept.position_m);
+    return;
+  }
+  setup.pipeline = std::make_unique<core::AxisPipeline>(
+      pipeline_config(axis, setup.calibration, setup.calibrated, &kept.position_m), setup.calibration.table);
+  spdlog::info("axis '{}': starting homed at {:.6f} m, kept at the clean shutdown of {} (the first move checks it "
+               "against the magnet signature)",
+               axis.name, kept.position_m, kept.saved_utc);
+}
+
+/// At a clean shutdown: keep the position of a homed axis for the next start.
+void keep_position(const AxisSetup& setup) {
+  const auto& axis = setup.config;
+  if (axis.homing.mode != config::HomingConfig::Mode::signature || axis.homing.state_file.empty() ||
+      !setup.calibrated)
+    return;
+  const auto& est = setup.pipeline->last();
+  if (!(est.status & core::status::kHomed) || !(est.status & core::status::kValid)) {
+    spdlog::info("axis '{}': not homed at shutdown; no position kept", axis.name);
+    return;
+  }
+  const config::KeptPosition k{axis.name, axis.motor.name, setup.calibration.info.id, est.position_m, config::now_utc()};
+  std::string error;
+  if (config::write_kept_position(axis.homing.state_file, k, error))
+    spdlog::info("axis '{}': position {:.6f} m kept in {}", axis.name, est.position_m, axis.homing.state_file);
+  else
+    spdlog::error("axis '{}': cannot keep the position: {}", axis.name, error);
+}
+
+}  // namespace
+
 int run_command(const RunOptions& options) {
   config::MachineConfig machine;
   if (!load_machine(options.config, machine)) return 2;
@@ -303,6 +375,7 @@ int run_command(const RunOptions& options) {
       std::fprintf(stderr, "axis '%s': %s\n", axis.name.c_str(), error.c_str());
       return 2;
     }
+    use_kept_position(loop->setup);
     loops.push_back(std::move(loop));
   }
 
@@ -487,6 +560,7 @@ int run_command(const RunOptions& options) {
       }
     }
     for (auto& loop : loops) {
+      keep_position(loop->setup);
       const auto& c = state_writer.counters(loop->slot);
       spdlog::info("axis '{}': {} samples estimated, {} published, {} diagnostics, offered deadline missed {} times "
                    "in {} episode(s)",

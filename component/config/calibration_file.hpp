@@ -40,6 +40,9 @@ std::string format_calibration(const core::Calibration& cal);
 /// valid(), whose sensor count differs from info.hall_count, or whose non-empty
 /// info.id is not its checksum. On failure returns false with `error` set,
 /// leaves the previous file untouched and removes the temp file.
+/// Now, as ISO 8601 UTC ("2026-11-22T09:30:00Z").
+std::string now_utc();
+
 bool write_calibration_file_atomic(const std::string& path, const core::Calibration& cal, std::string& error);
 
 }  // namespace ve::config

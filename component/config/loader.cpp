@@ -1072,9 +1072,22 @@ class MachineLoader {
     {
       Map h = a.map("homing");
       h.get_enum("mode", axis.homing.mode,
-                 {{"none", HomingConfig::Mode::none}, {"startup_position", HomingConfig::Mode::startup_position}});
+                 {{"none", HomingConfig::Mode::none},
+                  {"startup_position", HomingConfig::Mode::startup_position},
+                  {"signature", HomingConfig::Mode::signature}});
       if (h.get("position_m", axis.homing.position_m) || axis.homing.mode == HomingConfig::Mode::startup_position)
         within_travel(h, "position_m", axis.homing.position_m, travel);
+      const Value state = h.value("state_file");
+      if (axis.homing.mode == HomingConfig::Mode::signature) {
+        // The nominal table is the same in every period: nothing to match.
+        if (!cal.present())
+          h.value("mode").error("signature homing needs a calibration (axes[].calibration): the nominal table has "
+                                "no magnet signature to match");
+        std::string rel;
+        if (state.present() && state.as(rel, non_empty())) axis.homing.state_file = files_.stored(files_.resolve(path_, rel));
+      } else if (state.present()) {
+        state.error("only used with mode: signature (the kept position is checked against the magnet signature)");
+      }
     }
   }
 

@@ -48,9 +48,15 @@ struct HomingConfig {
   enum class Mode {
     none,              ///< position is relative to the period found at start-up; never HOMED
     startup_position,  ///< the axis is known to be within half a pitch of position_m at start-up
+    /// relative at start-up; homed by matching the magnets' signature in the
+    /// calibrated table over the first periods of motion
+    signature,
   };
   Mode mode = Mode::startup_position;
   double position_m = 0.5;
+  /// signature: where the position is kept at a clean shutdown, so that a restart at
+  /// rest is homed at once (checked on the first motion); "" = not kept.
+  std::string state_file;
 };
 
 struct AxisConfig {

@@ -56,6 +56,8 @@ class FusionFilter {
   double update_accel(double z_mps2, double r, double gate_sigma, bool& applied);
   /// Widens the covariance of the kinematic states (after persistent rejections).
   void inflate(double position_var_m2, double velocity_var, double acceleration_var);
+  /// Moves the position by `dx_m` (homing: from a relative frame into the absolute one).
+  void shift_position(double dx_m) { x_(kPos) += dx_m; }
   /// Switches between the tuning with the accelerometer and the Hall-only one.
   void set_accelerometer_available(bool available);
   bool accelerometer_available() const { return accel_available_; }

@@ -20,6 +20,7 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
     : cfg_(config),
       hall_(config.motor, std::move(table)),
       kf_(config.motor.sample_period_s(), config.motor.filter, config.sensors),
+      homing_(hall_, config.motor.magnet_pitch_m, config.signature),
       period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))) {
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
@@ -88,19 +89,42 @@ bool AxisPipeline::acquire(const RawSample& sample) {
     hi = cfg_.start_position_m + 0.5 * p;
     homed = true;
   } else {
-    // Relative: any period looks alike on an ideal track; take the second one.
-    lo = hall_.table().start_m + p;
-    hi = hall_.table().start_m + 2.0 * p;
+    // Relative: any period will do (on an ideal track they all look alike). Take
+    // one in the middle of the table, so that the relative position has room both ways.
+    const HallTable& t = hall_.table();
+    lo = t.start_m + std::floor(0.5 * (t.end_m() - t.start_m) / p) * p;
+    hi = lo + p;
     homed = false;
   }
   const HallFix fix = hall_.acquire(sample, lo, hi, 0.0, all_halls_mask_ & ~faulty_mask_);
   if (!fix.ok) return false;
   kf_.reset(fix.position_m, fix.variance_m2, accel_reading(sample), accel_usable(sample));
   homed_ = homed;
+  // Signature homing: search (not homed) or check the start position (homed from a
+  // configured or kept position) on the first motion.
+  if (cfg_.signature_homing) {
+    if (!homed_ || !started_) homing_.start(fix.position_m);
+  }
   started_ = true;
   rejected_in_row_ = 0;
   without_fix_in_row_ = 0;
   return true;
+}
+
+void AxisPipeline::signature_step(const RawSample& sample, double x_hall_m, double common_mode_v, std::uint32_t use) {
+  if (!homed_ && homing_.state() != SignatureHoming::State::collecting) homing_.start(x_hall_m);
+  if (!homing_.feed(sample, x_hall_m, common_mode_v, use)) return;
+  const double offset = homing_.offset_m();
+  if (homed_) {
+    // Checking a start position: within the period it named, nothing to do.
+    if (std::abs(offset) < 0.5 * cfg_.motor.magnet_pitch_m) return;
+    ++homing_corrections_;
+  }
+  // Into the absolute frame. The relative run used another period's table, whose
+  // tolerances differ by tens of micrometres: let the filter settle on the right one.
+  kf_.shift_position(offset);
+  kf_.inflate(4e-12, 4e-6, 0.0);
+  homed_ = true;
 }
 
 bool AxisPipeline::use_frame(const RawSample& sample) const {
@@ -181,7 +205,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     const HallFix fix = solve_robust(sample, guess, common_mode, use, outlier);
     out_.hall_sensors_used = fix.sensors_used;
     out_.hall_outlier_mask = outlier;
-    if (fix.ok) update_hall_health(use & sample.hall_valid_mask, outlier);
+    // While the signature search runs, the filter follows another period's table
+    // than the one the carriage is in: its sensors disagree by the two periods'
+    // tolerances, which says nothing about their health.
+    if (fix.ok && !homing_in_progress()) update_hall_health(use & sample.hall_valid_mask, outlier);
+    if (fix.ok && cfg_.signature_homing) signature_step(sample, guess, common_mode, use);
     if (fix.ok) {
       without_fix_in_row_ = 0;
       out_.hall_position_m = fix.position_m;

@@ -9,6 +9,7 @@
 #include "fusion_filter.hpp"
 #include "motor.hpp"
 #include "sample.hpp"
+#include "signature_homing.hpp"
 
 namespace ve::core {
 
@@ -21,6 +22,12 @@ struct PipelineConfig {
   /// periods is taken and the position is relative.
   bool start_position_known = true;
   double start_position_m = 0.5;
+  /// Homing by the magnets' signature (a calibrated table only): without a known
+  /// start the axis runs relative and homes itself within the first periods of
+  /// motion; with one (e.g. the position kept at the last clean shutdown) the first
+  /// motion checks it, and a start position off by whole periods is corrected.
+  bool signature_homing = false;
+  SignatureHomingTuning signature;
   /// Consecutive samples without a Hall fix (no sensor out of saturation, or one
   /// inconsistent with the saturated ones) before the axis re-acquires.
   int max_samples_without_fix = 40;
@@ -63,11 +70,18 @@ class AxisPipeline {
   const HallArray& hall_array() const { return hall_; }
   const FusionFilter& filter() const { return kf_; }
   bool initialised() const { return initialised_; }
+  /// Signature homing: searching, and the motion it has seen so far [m].
+  bool homing_in_progress() const { return homing_.state() == SignatureHoming::State::collecting; }
+  const SignatureHoming& signature_homing() const { return homing_; }
+  /// Times the signature showed a start position (kept or configured) off by whole
+  /// periods, and the position was corrected.
+  std::uint64_t homing_corrections() const { return homing_corrections_; }
   /// Forget the state; the next sample re-acquires near the last position.
   void restart() { initialised_ = false; }
 
  private:
   bool acquire(const RawSample& sample);
+  void signature_step(const RawSample& sample, double x_hall_m, double common_mode_v, std::uint32_t use);
   bool use_frame(const RawSample& sample) const;
   bool accel_usable(const RawSample& sample) const;
   double accel_reading(const RawSample& sample) const;
@@ -75,6 +89,8 @@ class AxisPipeline {
   PipelineConfig cfg_;
   HallArray hall_;
   FusionFilter kf_;
+  SignatureHoming homing_;
+  std::uint64_t homing_corrections_ = 0;
   EncoderEstimate out_;
   bool started_ = false;      ///< the filter has run at least once
   bool initialised_ = false;  ///< the filter is running

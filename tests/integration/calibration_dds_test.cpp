@@ -19,6 +19,7 @@
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "process.hpp"
+#include "temp_dir.hpp"
 
 namespace {
 
@@ -27,17 +28,7 @@ using namespace std::chrono_literals;
 using ve::test::ChildProcess;
 using ve::test::wait_until;
 
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    std::string tmpl = (fs::temp_directory_path() / "ve_cal_dds_XXXXXX").string();
-    path = mkdtemp(tmpl.data());
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
+using ve::test::TempDir;
 
 void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
 

@@ -14,6 +14,7 @@
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "process.hpp"
+#include "temp_dir.hpp"
 
 namespace {
 
@@ -21,14 +22,7 @@ using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 using ve::test::ChildProcess;
 
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    char tmpl[] = "/tmp/ve_calkill_XXXXXX";
-    path = mkdtemp(tmpl);
-  }
-  ~TempDir() { fs::remove_all(path); }
-};
+using ve::test::TempDir;
 
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);

@@ -13,6 +13,7 @@
 #include "config/loader.hpp"
 #include "core/identification.hpp"
 #include "process.hpp"
+#include "temp_dir.hpp"
 #include "sim/calibration_run.hpp"
 
 namespace {
@@ -20,14 +21,7 @@ namespace {
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    char tmpl[] = "/tmp/ve_report_XXXXXX";
-    path = mkdtemp(tmpl);
-  }
-  ~TempDir() { fs::remove_all(path); }
-};
+using ve::test::TempDir;
 
 void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
 

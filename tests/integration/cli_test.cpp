@@ -18,6 +18,7 @@
 #include "sim/calibration_run.hpp"
 #include "core/status.hpp"
 #include "process.hpp"
+#include "temp_dir.hpp"
 
 namespace {
 
@@ -26,14 +27,7 @@ namespace fs = std::filesystem;
 using ve::test::ChildProcess;
 using ve::test::wait_until;
 
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    char tmpl[] = "/tmp/ve_cli_XXXXXX";
-    path = mkdtemp(tmpl);
-  }
-  ~TempDir() { fs::remove_all(path); }
-};
+using ve::test::TempDir;
 
 void write(const fs::path& p, const std::string& text) {
   std::ofstream out(p);

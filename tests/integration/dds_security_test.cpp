@@ -47,6 +47,7 @@
 #include "VirtualEncoderPubSubTypes.h"
 #include "app/dds_io.hpp"
 #include "process.hpp"
+#include "temp_dir.hpp"
 
 namespace {
 
@@ -62,17 +63,7 @@ constexpr int kReadDomain = 61;
 constexpr int kCalibrationDomain = 62;
 constexpr std::uint32_t kAxis = 7;
 
-struct TempDir {
-  fs::path path;
-  TempDir() {
-    std::string tmpl = (fs::temp_directory_path() / "ve_security_XXXXXX").string();
-    path = mkdtemp(tmpl.data());
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
+using ve::test::TempDir;
 
 std::string read(const fs::path& p) {
   std::ifstream in(p);

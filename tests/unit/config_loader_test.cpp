@@ -699,5 +699,37 @@ TEST(ConfigLoader, PublishDividerMustLeaveTheDeadlineTwoPublishedPeriods) {
   expect_error(r, bad, 9, 31, "axes[1].output.publish_divider", "must be in [1, 1000], got 0");
 }
 
+TEST(ConfigLoader, SignatureHomingNeedsACalibrationAndOnlyItTakesAStateFile) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                                                        // 1
+                              "  - name: x\n"                                                  // 2
+                              "    motor: m.yaml\n"                                            // 3
+                              "    homing: {mode: signature, state_file: x.kept.yaml}\n"       // 4
+                              "  - name: y\n"                                                  // 5
+                              "    motor: m.yaml\n"                                            // 6
+                              "    homing: {mode: startup_position, state_file: y.kept.yaml}\n");  // 7
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 2u) << to_string(r.errors);
+  expect_error(r, path, 4, 20, "axes[0].homing.mode", "signature homing needs a calibration");
+  expect_error(r, path, 7, 50, "axes[1].homing.state_file", "only used with mode: signature");
+
+  // With a calibration (it may be about to be created), the state file resolves
+  // relative to the machine file.
+  const auto ok = dir.write("ok.yaml",
+                            "axes:\n"
+                            "  - name: x\n"
+                            "    motor: m.yaml\n"
+                            "    calibration: x.cal.yaml\n"
+                            "    homing: {mode: signature, state_file: state/x.kept.yaml}\n");
+  LoadOptions opt;
+  opt.calibration_must_exist = false;
+  const LoadResult r2 = load_machine_file(ok, opt);
+  ASSERT_TRUE(r2.ok()) << to_string(r2.errors);
+  EXPECT_EQ(r2.config.axes[0].homing.mode, HomingConfig::Mode::signature);
+  EXPECT_EQ(r2.config.axes[0].homing.state_file, dir.path("state/x.kept.yaml"));
+}
+
 }  // namespace
 }  // namespace ve::config
