@@ -240,8 +240,13 @@ void CalibrationService::work(Job job) {
   }
   const std::string report_path = out + ".report.txt";
   std::string report_note = "report " + report_path;
-  if (!write_text_file_atomic(report_path, format_identification_report(axis, cal, report), error))
+  std::string plot_error;
+  const auto plots = write_calibration_plots(out, cal, report, plot_error);
+  if (!plot_error.empty()) spdlog::warn("calibration over DDS: cannot write a plot: {}", plot_error);
+  if (!write_text_file_atomic(report_path, format_identification_report(axis, cal, report, plots), error))
     report_note = "report not written: " + error;
+  else if (!plots.empty())
+    report_note += " and " + std::to_string(plots.size()) + " plots beside it";
   finish(ve::dds::CALIBRATION_STATE_DONE, 1.0,
          "done: verdict good; calibration " + cal.info.id + "; " + figures + "; written to " + out + " (" + report_note +
              "); takes effect on the next start",

@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "config/atomic_file.hpp"
 #include "config/machine_config.hpp"
 #include "core/hall_table.hpp"
 #include "core/identification.hpp"
@@ -29,6 +30,6 @@ std::vector<std::string> write_calibration_plots(const std::string& calibration_
                                                  const core::IdentificationReport& report, std::string& error);
 
 /// Temporary file in the same directory, fsync, rename, fsync of the directory.
-bool write_text_file_atomic(const std::string& path, const std::string& text, std::string& error);
+using config::write_text_file_atomic;
 
 }  // namespace ve::app

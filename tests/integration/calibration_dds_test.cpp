@@ -214,6 +214,9 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
   const fs::path cal = dir.path / "calibration" / "short-12.cal.yaml";
   ASSERT_TRUE(fs::exists(cal)) << pub.log();
   EXPECT_TRUE(fs::exists(cal.string() + ".report.txt"));
+  // With the same plots as `calibrate` writes.
+  for (const char* plot : {"table-period", "table-all-periods", "residuals", "forward-backward"})
+    EXPECT_TRUE(fs::exists(cal.string() + "." + plot + ".svg")) << plot;
   auto loaded_machine = ve::config::load_machine_file(machine.string());
   ASSERT_TRUE(loaded_machine.ok());
   auto loaded = ve::config::load_calibration_file(cal.string(), loaded_machine.config.axes.at(0).motor);
