@@ -20,7 +20,7 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
     : cfg_(config),
       hall_(config.motor, std::move(table)),
       kf_(config.motor.sample_period_s(), config.motor.filter, config.sensors),
-      homing_(hall_, config.motor.magnet_pitch_m, config.signature),
+      homing_(config.motor.magnet_pitch_m, config.signature),
       period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))) {
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
@@ -103,7 +103,7 @@ bool AxisPipeline::acquire(const RawSample& sample) {
   // Signature homing: search (not homed) or check the start position (homed from a
   // configured or kept position) on the first motion.
   if (cfg_.signature_homing) {
-    if (!homed_ || !started_) homing_.start(fix.position_m);
+    if (!homed_ || !started_) homing_.start(hall_, fix.position_m);
   }
   started_ = true;
   rejected_in_row_ = 0;
@@ -112,8 +112,8 @@ bool AxisPipeline::acquire(const RawSample& sample) {
 }
 
 void AxisPipeline::signature_step(const RawSample& sample, double x_hall_m, double common_mode_v, std::uint32_t use) {
-  if (!homed_ && homing_.state() != SignatureHoming::State::collecting) homing_.start(x_hall_m);
-  if (!homing_.feed(sample, x_hall_m, common_mode_v, use)) return;
+  if (!homed_ && homing_.state() != SignatureHoming::State::collecting) homing_.start(hall_, x_hall_m);
+  if (!homing_.feed(hall_, sample, x_hall_m, common_mode_v, use)) return;
   const double offset = homing_.offset_m();
   if (homed_) {
     // Checking a start position: within the period it named, nothing to do.

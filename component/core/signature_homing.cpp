@@ -5,11 +5,11 @@
 
 namespace ve::core {
 
-SignatureHoming::SignatureHoming(const HallArray& hall, double pitch_m, const SignatureHomingTuning& tuning)
-    : hall_(hall), pitch_m_(pitch_m), tuning_(tuning) {}
+SignatureHoming::SignatureHoming(double pitch_m, const SignatureHomingTuning& tuning)
+    : pitch_m_(pitch_m), tuning_(tuning) {}
 
-void SignatureHoming::start(double x_rel_m) {
-  const HallTable& t = hall_.table();
+void SignatureHoming::start(const HallArray& hall, double x_rel_m) {
+  const HallTable& t = hall.table();
   // Every whole number of pitches that keeps x_rel inside the table.
   const long k_lo = static_cast<long>(std::ceil((t.start_m - x_rel_m) / pitch_m_));
   const long k_hi = static_cast<long>(std::floor((t.end_m() - x_rel_m) / pitch_m_));
@@ -31,7 +31,8 @@ void SignatureHoming::start(double x_rel_m) {
   state_ = n_ > 0 ? State::collecting : State::idle;
 }
 
-bool SignatureHoming::feed(const RawSample& sample, double x_rel_m, double common_mode_v, std::uint32_t use_mask) {
+bool SignatureHoming::feed(const HallArray& hall, const RawSample& sample, double x_rel_m, double common_mode_v,
+                           std::uint32_t use_mask) {
   if (state_ != State::collecting) return false;
   motion_m_ += std::abs(x_rel_m - last_x_m_);
   last_x_m_ = x_rel_m;
@@ -39,7 +40,7 @@ bool SignatureHoming::feed(const RawSample& sample, double x_rel_m, double commo
   last_record_x_m_ = x_rel_m;
   ++records_;
 
-  const HallTable& t = hall_.table();
+  const HallTable& t = hall.table();
   double best = std::numeric_limits<double>::infinity();
   double second = std::numeric_limits<double>::infinity();
   int best_i = -1;
@@ -53,7 +54,7 @@ bool SignatureHoming::feed(const RawSample& sample, double x_rel_m, double commo
       --alive_;
       continue;
     }
-    const HallFix f = hall_.solve(sample, guess, common_mode_v, use_mask);
+    const HallFix f = hall.solve(sample, guess, common_mode_v, use_mask);
     if (f.out_of_table) {
       alive_flag_[u] = false;
       --alive_;
@@ -71,7 +72,7 @@ bool SignatureHoming::feed(const RawSample& sample, double x_rel_m, double commo
   }
   if (best_i < 0) {
     // Nothing fits anywhere (a table of another track?): start over from here.
-    start(x_rel_m);
+    start(hall, x_rel_m);
     return false;
   }
   for (int i = 0; i < n_; ++i) {

@@ -40,17 +40,19 @@ class SignatureHoming {
 
   enum class State { idle, collecting, homed };
 
-  SignatureHoming(const HallArray& hall, double pitch_m, const SignatureHomingTuning& tuning = {});
+  SignatureHoming(double pitch_m, const SignatureHomingTuning& tuning = {});
 
+  /// The Hall array (with the calibrated table) is passed to each call, not kept.
   /// Starts a search around relative position `x_rel_m` (the frame the filter runs in).
   /// Candidates: x_rel + k pitch inside the table, for every integer k.
-  void start(double x_rel_m);
+  void start(const HallArray& hall, double x_rel_m);
   void stop() { state_ = State::idle; }
 
   /// One Hall sample taken when the filter placed the carriage at `x_rel_m` (at the
   /// Halls' own instant). Returns true on the sample that decides; then `offset_m()`
   /// is what to add to the relative position to make it absolute.
-  bool feed(const RawSample& sample, double x_rel_m, double common_mode_v, std::uint32_t use_mask);
+  bool feed(const HallArray& hall, const RawSample& sample, double x_rel_m, double common_mode_v,
+            std::uint32_t use_mask);
 
   State state() const { return state_; }
   double offset_m() const { return offset_m_; }
@@ -63,7 +65,6 @@ class SignatureHoming {
   double runner_up_chi2() const { return second_chi2_; }
 
  private:
-  const HallArray& hall_;
   double pitch_m_;
   SignatureHomingTuning tuning_;
   State state_ = State::idle;
