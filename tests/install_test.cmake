@@ -7,6 +7,7 @@ endif()
 foreach(f
     usr/bin/virtual-encoder
     usr/lib/systemd/system/virtual-encoder.service
+    usr/lib/sysctl.d/60-virtual-encoder.conf
     usr/share/virtual-encoder/dds-profiles.xml
     usr/share/virtual-encoder/config/machines/sim.yaml
     usr/share/virtual-encoder/config/motors/sim-12mm.yaml

@@ -1,9 +1,11 @@
 #include "dds_io.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <deque>
+#include <fstream>
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
@@ -77,7 +79,10 @@ void state_reader_defaults(fdds::DataReaderQos& q) {
   q.reliability().kind = fdds::BEST_EFFORT_RELIABILITY_QOS;
   q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
   q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 64;  // the listener drains it; a burst from several axes must fit
+  // Per axis instance: 64 ms at 4 kHz. A listener drains it on the receive thread;
+  // a consumer that takes from its own loop may be descheduled for tens of ms
+  // without its history overwriting samples it has not taken yet.
+  q.history().depth = transport::kStateReaderDepth;
   q.deadline().period = duration_ms(10.0);
   automatic_liveliness(q.liveliness(), 2.0, 1.0);
   q.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
@@ -163,8 +168,13 @@ void receive_over_udp_only(fdds::DomainParticipantQos& pq) {
   using eprosima::fastrtps::rtps::Locator_t;
   pq.transport().use_builtin_transports = false;
   pq.transport().user_transports.clear();
-  pq.transport().user_transports.push_back(std::make_shared<rtps::SharedMemTransportDescriptor>());
-  pq.transport().user_transports.push_back(std::make_shared<rtps::UDPv4TransportDescriptor>());
+  auto shm = std::make_shared<rtps::SharedMemTransportDescriptor>();
+  shm->segment_size(transport::kShmSegmentBytes);
+  shm->port_queue_capacity(transport::kShmPortQueueCapacity);
+  pq.transport().user_transports.push_back(shm);
+  auto udp = std::make_shared<rtps::UDPv4TransportDescriptor>();
+  udp->receiveBufferSize = transport::kUdpReceiveBufferBytes;
+  pq.transport().user_transports.push_back(udp);
   // Port 0 and no address: Fast DDS fills in the domain's ports and the host's
   // interfaces, as for its default locators. The multicast discovery locator
   // must be given too once a unicast one is (else none is used).
@@ -180,6 +190,26 @@ void receive_over_udp_only(fdds::DomainParticipantQos& pq) {
   wire.builtin.metatrafficMulticastLocatorList.push_back(multicast);
   wire.default_unicast_locator_list.clear();
   wire.default_unicast_locator_list.push_back(unicast);
+}
+
+/// The kernel caps SO_RCVBUF at net.core.rmem_max without an error (Debian's
+/// default is 212992 bytes): say so once, since the state stream then has only
+/// that much room for a reader's scheduling hiccup (deploy/dds-profiles.xml, ve_udp).
+void warn_if_receive_buffer_capped(const fdds::DomainParticipantQos& pq) {
+  std::uint32_t asked = 0;
+  for (const auto& t : pq.transport().user_transports)
+    if (auto udp = std::dynamic_pointer_cast<eprosima::fastdds::rtps::UDPv4TransportDescriptor>(t))
+      asked = std::max(asked, udp->receiveBufferSize);
+  if (asked == 0) return;
+  std::ifstream in("/proc/sys/net/core/rmem_max");
+  unsigned long rmem_max = 0;
+  if (!(in >> rmem_max) || rmem_max >= asked) return;
+  static std::atomic<bool> warned{false};
+  if (warned.exchange(true)) return;
+  spdlog::warn("DDS: the UDP receive buffer asked for ({} KiB) is capped at net.core.rmem_max ({} KiB): less room "
+               "for a reader's scheduling hiccup than configured, best-effort state samples beyond it are dropped by "
+               "the kernel; set net.core.rmem_max >= {} (sysctl)",
+               asked / 1024, rmem_max / 1024, asked);
 }
 
 }  // namespace
@@ -231,6 +261,7 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
     error = "cannot create a DDS participant on domain " + std::to_string(options.domain);
     return nullptr;
   }
+  warn_if_receive_buffer_capped(pq);
   fdds::TypeSupport state_type(new ve::dds::EncoderStatePubSubType());
   fdds::TypeSupport description_type(new ve::dds::AxisDescriptionPubSubType());
   fdds::TypeSupport diagnostics_type(new ve::dds::DiagnosticsPubSubType());

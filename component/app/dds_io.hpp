@@ -54,6 +54,26 @@ inline constexpr const char* kCalibrationStatusWriter = "ve_calibration_status_w
 inline constexpr const char* kCalibrationStatusReader = "ve_calibration_status_reader";
 }  // namespace profile
 
+/// Buffer sizes of the product's transports (built-in QoS; the same values as the
+/// ve_shm / ve_udp descriptors and ve_state_reader in deploy/dds-profiles.xml).
+/// Sized so that a reader descheduled for tens of ms loses nothing of the state
+/// stream (3 axes x 4 kHz = 12,000 datagrams/s on one socket, about 1.3 KiB of
+/// kernel buffer each): see README.md, "DDS interface".
+namespace transport {
+/// SO_RCVBUF asked for (the kernel doubles it, capped at net.core.rmem_max): with
+/// 4 MiB about 6,500 datagrams, 0.5 s of the 3-axis stream; the Linux default of
+/// 208 KiB held 166, 14 ms (bench_soak).
+inline constexpr std::uint32_t kUdpReceiveBufferBytes = 4u * 1024u * 1024u;
+/// Shared memory: this participant's segment (the buffers it sends, until every
+/// reader has taken them: about 250 bytes a sample, 2 MiB for one reader with a
+/// full queue) and the queue of the ports it receives on (Fast DDS's default 512
+/// messages is 43 ms of the 3-axis stream; 8192 is 0.68 s).
+inline constexpr std::uint32_t kShmSegmentBytes = 4u * 1024u * 1024u;
+inline constexpr std::uint32_t kShmPortQueueCapacity = 8192u;
+/// ve_state_reader's history depth per axis instance (64 ms at 4 kHz).
+inline constexpr std::int32_t kStateReaderDepth = 256;
+}  // namespace transport
+
 struct DdsOptions {
   int domain = 0;
   /// Fast DDS XML profiles, loaded before the participant. Profiles are also

@@ -780,6 +780,7 @@ void read_motor(Map m, core::MotorConfig& motor) {
     Map f = m.map("filter");
     f.get("jerk_std_mps3", motor.filter.jerk_std_mps3, positive());
     f.get("hall_position_floor_m", motor.filter.hall_position_floor_m, non_negative());
+    f.get("hall_systematic_std_m", motor.filter.hall_systematic_std_m, non_negative());
     f.get("gate_sigma", motor.filter.gate_sigma, positive());
     f.get("initial_position_std_m", motor.filter.initial_position_std_m, positive());
     f.get("initial_velocity_std_mps", motor.filter.initial_velocity_std_mps, positive());
@@ -796,6 +797,8 @@ void read_motor(Map m, core::MotorConfig& motor) {
           non_negative());
     f.get("use_frame_accelerometer", motor.filter.use_frame_accelerometer);
     f.get("steady_jerk_std_mps3", motor.filter.steady_jerk_std_mps3, non_negative());
+    f.get("steady_position_walk_m_per_sqrt_s", motor.filter.steady_position_walk_m_per_sqrt_s, non_negative());
+    f.get("steady_hall_position_floor_m", motor.filter.steady_hall_position_floor_m, non_negative());
     f.get("steady_jerk_limit_mps3", motor.filter.steady_jerk_limit_mps3, positive());
     f.get("steady_hold_s", motor.filter.steady_hold_s, positive());
     f.get("steady_exit_cusum", motor.filter.steady_exit_cusum, positive());

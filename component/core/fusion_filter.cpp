@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Cholesky>
+
 namespace ve::core {
 
 namespace {
@@ -63,6 +65,14 @@ FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const Sensor
   const double ds = tuning.steady_jerk_std_mps3 * t;
   q_steady_(kAcc, kAcc) = ds * ds;
   q_steady_(kJerk, kJerk) = 0.0;
+  // ... and the position a small random walk of its own, so that it keeps
+  // following the Halls at about the agile model's pace while the velocity
+  // averages over the calm phase.
+  const double dx = tuning.steady_position_walk_m_per_sqrt_s * std::sqrt(t);
+  q_steady_(kPos, kPos) = dx * dx;
+  excess_q_ = Eigen::Vector3d(dx * dx, 0.0, ds * ds);
+  steady_floor_delta_m2_ = tuning.hall_position_floor_m * tuning.hall_position_floor_m -
+                          tuning.steady_hall_position_floor_m * tuning.steady_hall_position_floor_m;
   hold_samples_ = std::max(1, static_cast<int>(std::lround(tuning.steady_hold_s / t)));
   bias_step_settle_ = std::max(0, static_cast<int>(std::lround(kBiasStepSettleS / t)));
 
@@ -79,6 +89,7 @@ void FusionFilter::reset(double position_m, double position_var_m2, double accel
   clear_detectors();
   hall_updates_ = 0;
   steady_ = false;
+  fix_count_ = 0;
   q_ = accel_available_ ? q_accel_ : q_hall_only_;
   const double a0 = accel_valid ? (accel_reading_mps2 - model_.accel_bias_mps2) / model_.accel_scale : 0.0;
   x_(kPos) = position_m;
@@ -106,6 +117,7 @@ void FusionFilter::reset(double position_m, double position_var_m2, double accel
 }
 
 void FusionFilter::predict() {
+  ++k_;
   // A is block diagonal: kinematics (x, v, a, j), identity (bias, scale) and the
   // resonator's rotation. Multiplying by the blocks costs a fifth of 8x8 products.
   constexpr int K = kPos, B = kBias, V = kVibIn;
@@ -127,6 +139,11 @@ void FusionFilter::predict() {
   p_.block<2, 2>(B, B) = (0.5 * (p_.block<2, 2>(B, B) + p_.block<2, 2>(B, B).transpose())).eval();
   p_.block<2, 2>(V, V) = (0.5 * (p_.block<2, 2>(V, V) + p_.block<2, 2>(V, V).transpose())).eval();
   p_ += q_;
+  if (steady_) {
+    const Eigen::Matrix3d a3 = a_.block<3, 3>(K, K);
+    excess_ = (a3 * excess_ * a3.transpose()).eval();
+    excess_.diagonal() += excess_q_;
+  }
 }
 
 void FusionFilter::set_accelerometer_available(bool available) {
@@ -135,6 +152,7 @@ void FusionFilter::set_accelerometer_available(bool available) {
   steady_ = false;
   clear_detectors();
   hall_updates_ = 0;
+  fix_count_ = 0;
   q_ = available ? q_accel_ : q_hall_only_;
   if (!available) {
     // Freeze the jerk at zero: without the accelerometer nothing observes it well.
@@ -184,10 +202,58 @@ void FusionFilter::enter_steady() {
   p_.row(kJerk).setZero();
   p_.col(kJerk).setZero();
   acc_up_ = acc_down_ = Cusum{};
+  excess_.setZero();
+  seed_from_fixes();
+}
+
+void FusionFilter::seed_from_fixes() {
+  // The agile model integrated the accelerometer's noise into the velocity while
+  // the acceleration was in fact holding still; the Hall fixes of that window say
+  // more. Fit x(t) = x + v t + a t^2 / 2 (t <= 0 now) to them, each fix taken at
+  // t - hall_delay, and start the calm model from the fit where it knows better.
+  const int n = std::min(fix_count_, std::min(kFixes, 2 * kWin + hold_samples_));
+  if (n < 16) return;
+  const double d = model_.hall_delay_s;
+  // Normal equations in scaled time u = t / T (conditioning).
+  const double span = static_cast<double>(k_ - fix_k_[static_cast<std::size_t>((fix_head_ - n + kFixes) % kFixes)]) * ts_ + d;
+  if (!(span > 0.0)) return;
+  const double inv_span = 1.0 / span;
+  Eigen::Matrix3d nm = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+  for (int i = 0; i < n; ++i) {
+    const auto j = static_cast<std::size_t>((fix_head_ - 1 - i + kFixes) % kFixes);
+    const double u = (-static_cast<double>(k_ - fix_k_[j]) * ts_ - d) * inv_span;
+    const Eigen::Vector3d g(1.0, u, 0.5 * u * u);
+    const double w = 1.0 / std::max(1.0 / fix_w_[j] - steady_floor_delta_m2_, 0.25 / fix_w_[j]);
+    nm.noalias() += w * g * g.transpose();
+    rhs.noalias() += w * fix_z_[j] * g;
+  }
+  Eigen::LDLT<Eigen::Matrix3d> ldlt(nm);
+  if (ldlt.info() != Eigen::Success) return;
+  const Eigen::Vector3d c = ldlt.solve(rhs);
+  Eigen::Matrix3d cov = ldlt.solve(Eigen::Matrix3d::Identity());
+  // Back to seconds: c = (x, v T, a T^2).
+  const Eigen::Vector3d scale(1.0, inv_span, inv_span * inv_span);
+  const Eigen::Vector3d fit = c.cwiseProduct(scale);
+  cov = scale.asDiagonal() * cov * scale.asDiagonal();
+  // Only where the fit knows the velocity better, and agrees with the filter.
+  const double pv = p_(kVel, kVel);
+  if (!(cov(1, 1) < pv)) return;
+  const double dv = fit(1) - x_(kVel);
+  if (dv * dv > 9.0 * (pv + cov(1, 1))) return;
+  x_(kPos) = fit(0);
+  x_(kVel) = fit(1);
+  x_(kAcc) = fit(2);
+  for (int r = kPos; r <= kAcc; ++r) {
+    p_.row(r).setZero();
+    p_.col(r).setZero();
+  }
+  p_.block<3, 3>(kPos, kPos) = cov;
 }
 
 void FusionFilter::leave_steady(const Cusum* c, double last_nu, double r) {
   steady_ = false;
+  excess_.setZero();
   calm_count_ = 0;
   q_ = q_accel_;
   if (c != nullptr && c->n > 0.0) {
@@ -250,13 +316,30 @@ double FusionFilter::scalar_update(const Row& h, double innovation, double r, do
   if (!applied) return nu_norm;
   const Vec k = ph / s;
   x_ += k * innovation;
+  if (steady_) {
+    // Joseph form of the update on the excess (no measurement noise in it).
+    const Eigen::Vector3d k3 = k.head<3>();
+    const Eigen::Vector3d u = excess_ * h.head<3>().transpose();
+    const double hu = h.head<3>().dot(u);
+    excess_ += hu * k3 * k3.transpose() - k3 * u.transpose() - u * k3.transpose();
+  }
   // k ph' = ph ph' / s is symmetric; rounding asymmetry is removed once per predict().
   p_.noalias() -= k * ph.transpose();
   return nu_norm;
 }
 
 double FusionFilter::update_hall(double z_m, double r_m2, double gate_sigma, bool& applied) {
+  // The calm model averages many fixes: it takes their variance with its own floor.
+  if (steady_) r_m2 = std::max(r_m2 - steady_floor_delta_m2_, 0.25 * r_m2);
   const double nu_norm = scalar_update(h_hall_, z_m - h_hall_.dot(x_), r_m2, gate_sigma, applied);
+  if (applied) {
+    const auto j = static_cast<std::size_t>(fix_head_);
+    fix_z_[j] = z_m;
+    fix_w_[j] = 1.0 / r_m2;
+    fix_k_[j] = k_;
+    fix_head_ = (fix_head_ + 1) % kFixes;
+    fix_count_ = std::min(fix_count_ + 1, kFixes);
+  }
   const double h = tuning_.accel_bias_step_cusum;
   // While the filter settles after a (re)start its Hall innovations lean one way
   // for a while (initial velocity, jerk and bias uncertain); that is not a bias step.
@@ -309,6 +392,17 @@ double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bo
     }
   }
   return nu_norm;
+}
+
+double FusionFilter::position_variance() const {
+  const double p = p_(kPos, kPos);
+  const double sys = tuning_.hall_systematic_std_m;
+  return std::max(p - excess_(0, 0), 0.1 * p) + sys * sys;
+}
+
+double FusionFilter::velocity_variance() const {
+  const double p = p_(kVel, kVel);
+  return std::max(p - excess_(1, 1), 0.1 * p);
 }
 
 double FusionFilter::vibration_amplitude_mps2() const {

@@ -19,7 +19,15 @@
 //    entered when the accelerometer's own jerk estimate stays small for a while
 //    and left as soon as a CUSUM of its accelerometer innovations shows the
 //    acceleration changing; what it missed since the change began (the sum of
-//    those innovations) is then added back to acceleration, velocity and position;
+//    those innovations) is then added back to acceleration, velocity and position.
+//    On entry, the velocity (with position and acceleration) is taken from a
+//    least-squares fit to the Hall fixes of the window the test found calm, where
+//    the agile model had integrated the accelerometer's noise. The published
+//    sigmas leave out what the calm model's own white jerk (and position walk)
+//    added to the covariance, tracked as a consider covariance with the filter's
+//    gains: the acceleration did hold still, and otherwise the model is left;
+//  - the published position sigma adds the Hall table's systematic error
+//    (hall_systematic_std_m), which no averaging removes;
 //  - detection of a step in the accelerometer's bias: a CUSUM of the Hall
 //    innovations that widens the bias covariance, so the bias state follows.
 // Fixed-size Eigen and arrays; nothing allocates per sample.
@@ -57,12 +65,22 @@ class FusionFilter {
   /// Widens the covariance of the kinematic states (after persistent rejections).
   void inflate(double position_var_m2, double velocity_var, double acceleration_var);
   /// Moves the position by `dx_m` (homing: from a relative frame into the absolute one).
-  void shift_position(double dx_m) { x_(kPos) += dx_m; }
+  void shift_position(double dx_m) {
+    x_(kPos) += dx_m;
+    fix_count_ = 0;  // the stored fixes are in the old frame
+  }
   /// Switches between the tuning with the accelerometer and the Hall-only one.
   void set_accelerometer_available(bool available);
   bool accelerometer_available() const { return accel_available_; }
 
   const Vec& state() const { return x_; }
+  /// Variances to publish. In the calm model the filter's covariance carries the
+  /// white jerk it allows the acceleration (so that it can follow a slow change)
+  /// although the acceleration holds still; what that jerk added is taken out
+  /// (see excess_). The position adds the Hall table's systematic error, which no
+  /// averaging removes.
+  double position_variance() const;
+  double velocity_variance() const;
   const Mat& covariance() const { return p_; }
   double period_s() const { return ts_; }
   /// The frame vibration's current amplitude estimate [m/s^2].
@@ -84,6 +102,9 @@ class FusionFilter {
   };
   static bool cusum_step(Cusum& c, double z, double nu, double drift, double threshold);
   void enter_steady();
+  /// On entry into the calm model: a least-squares fit of a constant acceleration
+  /// to the Hall fixes of the window over which the acceleration held still.
+  void seed_from_fixes();
   void leave_steady(const Cusum* c, double last_nu, double r);
   void steady_test(double reading);
   void clear_detectors();
@@ -105,6 +126,21 @@ class FusionFilter {
   int hall_updates_ = 0;
   int bias_step_settle_ = 0;
   Mat q_steady_;  ///< process noise of the calm model
+  /// In the calm model: the part of the (position, velocity, acceleration)
+  /// covariance that its white jerk contributed, propagated with the filter's own
+  /// gains (a consider covariance). Zero in the agile model.
+  Eigen::Matrix3d excess_ = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d excess_q_ = Eigen::Vector3d::Zero();  ///< its process noise (diagonal)
+  /// hall_position_floor^2 - steady_hall_position_floor^2 (see update_hall).
+  double steady_floor_delta_m2_ = 0.0;
+  // The last Hall fixes (position, weight, sample index), for seed_from_fixes().
+  static constexpr int kFixes = 256;
+  std::array<double, kFixes> fix_z_{};
+  std::array<double, kFixes> fix_w_{};
+  std::array<std::int64_t, kFixes> fix_k_{};
+  int fix_head_ = 0;
+  int fix_count_ = 0;
+  std::int64_t k_ = 0;  ///< predictions since construction
 
   double ts_;
   Mat a_;

@@ -75,6 +75,9 @@ struct FilterConfig {
   double vibration_random_walk_mps2_per_sqrt_s = 0.01;
   /// Floor added to the Hall position variance computed from sensor slopes [m].
   double hall_position_floor_m = 0.2e-6;
+  /// Systematic error of the Hall position (what calibration leaves in the table):
+  /// no averaging removes it, so the published position sigma includes it [m].
+  double hall_systematic_std_m = 0.0;
   /// Innovation gate on the Hall position, in standard deviations.
   double gate_sigma = 6.0;
   /// Initial standard deviations of the state.
@@ -126,6 +129,13 @@ struct FilterConfig {
   /// accelerometer's noise is averaged instead of integrated into the velocity.
   /// 0: always the agile model above.
   double steady_jerk_std_mps3 = 0.0;
+  /// ... and a random walk of the position of this size [m/sqrt(s)], so that the
+  /// position keeps following the Halls closely while the velocity averages.
+  double steady_position_walk_m_per_sqrt_s = 0.0;
+  /// The calm model averages many Hall fixes: it takes their variance with this
+  /// floor instead of hall_position_floor_m (which the Hall array and its health
+  /// checks keep using) [m].
+  double steady_hall_position_floor_m = 0.2e-6;
   /// The acceleration holds still when the accelerometer's own jerk estimate (the
   /// difference of two consecutive 20 ms means) stays below this ...
   double steady_jerk_limit_mps3 = 0.5;

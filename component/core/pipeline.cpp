@@ -256,8 +256,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.acceleration_mps2 = x(FusionFilter::kAcc);
   out_.accel_bias_mps2 = x(FusionFilter::kBias);
   out_.accel_scale = x(FusionFilter::kScale);
-  out_.position_std_m = std::sqrt(p(FusionFilter::kPos, FusionFilter::kPos));
-  out_.velocity_std_mps = std::sqrt(p(FusionFilter::kVel, FusionFilter::kVel));
+  out_.position_std_m = std::sqrt(kf_.position_variance());
+  out_.velocity_std_mps = std::sqrt(kf_.velocity_variance());
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 
   // A bias far from its calibrated value: the accelerometer has changed (it is still

@@ -10,7 +10,13 @@
 //  * latency: this process' CLOCK_REALTIME when the sample is handed to it minus
 //    the sample's source_time_ns (host CLOCK_REALTIME when the driver handed the
 //    sample over), i.e. estimator + DDS write + transport + take; one host, one
-//    clock. Percentiles from a 1 us histogram.
+//    clock. Percentiles from a 1 us histogram;
+//  * where lost samples were lost: the kernel's drop counter of this process' UDP
+//    sockets (/proc/net/udp: datagrams dropped because the socket's receive buffer
+//    was full) and the largest receive queue seen (sampled every 50 ms), against the
+//    publisher's own counters from ve/diagnostics (write failures, samples skipped
+//    by the source). A gap with neither is lost in Fast DDS (e.g. a shared-memory
+//    port queue) or in the reader's history.
 // Then it crashes the publisher (SIGKILL) a few times and starts it again after
 // 200 ms (the unit's RestartSec), measuring exec -> first sample received from the
 // new process, and -> a sample from every axis.
@@ -19,10 +25,14 @@
 // tests/bench/results/soak.md. Not a ctest test; no pass/fail on timing.
 //
 //   bench_soak [--minutes M] [--interval-s S] [--warmup-s S] [--restarts N]
-//              [--machine FILE] [--domain D] [--out FILE | --no-write]
+//              [--machine FILE] [--domain D] [--profiles FILE] [--out FILE | --no-write]
+// --profiles: Fast DDS XML profiles for both processes (FASTRTPS_DEFAULT_PROFILES_FILE),
+// e.g. deploy/dds-profiles.xml; without it both use the product's built-in QoS.
 // CI-sized: the default 2 minutes. Long soak: --minutes 240 --interval-s 300.
+#include <dirent.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -100,6 +110,11 @@ class Histogram {
     n_ = 0;
     max_ns_ = 0;
   }
+  void swap(Histogram& o) {
+    bins_.swap(o.bins_);
+    std::swap(n_, o.n_);
+    std::swap(max_ns_, o.max_ns_);
+  }
   void merge(const Histogram& o) {
     for (std::size_t i = 0; i < bins_.size(); ++i) bins_[i] += o.bins_[i];
     n_ += o.n_;
@@ -143,6 +158,20 @@ struct Collector {
   std::uint64_t stale = 0;
   // Restart measurement: first sample of the current incarnation, per axis.
   std::map<std::uint32_t, std::int64_t> first_mono;
+  // The publisher's own counters, from its last ve/diagnostics sample per axis.
+  struct Published {
+    std::uint64_t samples = 0, skipped = 0, write_failures = 0;
+  };
+  std::map<std::uint32_t, Published> published;
+
+  void on_diagnostics(const ve::dds::Diagnostics& d) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (d.publish_time_ns() < incarnation_rt_ns) return;
+    Published& p = published[d.axis_id()];
+    p.samples = d.samples_total();
+    p.skipped = d.samples_skipped_total();
+    p.write_failures = d.write_failures_total();
+  }
 
   void on_sample(const ve::dds::EncoderState& s) {
     const std::int64_t arrival = rt_ns();
@@ -176,6 +205,7 @@ struct Collector {
     incarnation_rt_ns = exec_rt;
     for (auto& [id, a] : total) a.started = false;
     first_mono.clear();
+    published.clear();
   }
 };
 
@@ -189,6 +219,9 @@ class Publisher {
     posix_spawn_file_actions_addopen(&fa, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
     posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
     posix_spawn_file_actions_adddup2(&fa, STDOUT_FILENO, STDERR_FILENO);
+    // Not this process' DDS sockets and shared-memory files: the publisher must not
+    // hold them (and the socket counters below are then this process' alone).
+    posix_spawn_file_actions_addclosefrom_np(&fa, STDERR_FILENO + 1);
     std::vector<char*> argv;
     for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
@@ -257,12 +290,79 @@ double cpu_s(pid_t pid) {
   return static_cast<double>(utime + stime) / static_cast<double>(sysconf(_SC_CLK_TCK));
 }
 
+/// This process' UDP sockets (Fast DDS's receive sockets among them): their inodes,
+/// for /proc/net/udp, and the largest receive buffer (SO_RCVBUF, as the kernel
+/// accounts it: twice what was asked for).
+struct UdpSockets {
+  std::vector<unsigned long> inodes;
+  int max_rcvbuf = 0;
+  int min_rcvbuf = 0;
+};
+
+UdpSockets own_udp_sockets() {
+  UdpSockets out;
+  DIR* d = opendir("/proc/self/fd");
+  if (d == nullptr) return out;
+  while (dirent* e = readdir(d)) {
+    const int fd = std::atoi(e->d_name);
+    if (fd <= 2) continue;
+    char link[256] = {};
+    const std::string path = std::string("/proc/self/fd/") + e->d_name;
+    const ssize_t n = readlink(path.c_str(), link, sizeof link - 1);
+    if (n <= 0 || std::strncmp(link, "socket:[", 8) != 0) continue;
+    int type = 0;
+    socklen_t len = sizeof type;
+    if (getsockopt(fd, SOL_SOCKET, SO_TYPE, &type, &len) != 0 || type != SOCK_DGRAM) continue;
+    int rcvbuf = 0;
+    len = sizeof rcvbuf;
+    getsockopt(fd, SOL_SOCKET, SO_RCVBUF, &rcvbuf, &len);
+    out.max_rcvbuf = std::max(out.max_rcvbuf, rcvbuf);
+    out.min_rcvbuf = out.min_rcvbuf == 0 ? rcvbuf : std::min(out.min_rcvbuf, rcvbuf);
+    out.inodes.push_back(std::strtoul(link + 8, nullptr, 10));
+  }
+  closedir(d);
+  return out;
+}
+
+/// Sum of the kernel's drop counters and the largest receive queue [bytes] of the
+/// given UDP sockets (/proc/net/udp and udp6).
+struct UdpCounters {
+  std::uint64_t drops = 0;
+  std::uint64_t rx_queue_max = 0;
+};
+
+UdpCounters udp_counters(const std::vector<unsigned long>& inodes) {
+  UdpCounters c;
+  for (const char* file : {"/proc/net/udp", "/proc/net/udp6"}) {
+    std::ifstream in(file);
+    std::string line;
+    std::getline(in, line);  // header
+    while (std::getline(in, line)) {
+      // sl local rem st tx_queue:rx_queue tr:tm->when retrnsmt uid timeout inode ref pointer drops
+      std::istringstream f(line);
+      std::string sl, local, rem, st, queues, tr, retr, uid, timeout, inode, ref, ptr, drops;
+      if (!(f >> sl >> local >> rem >> st >> queues >> tr >> retr >> uid >> timeout >> inode >> ref >> ptr >> drops))
+        continue;
+      const unsigned long ino = std::strtoul(inode.c_str(), nullptr, 10);
+      if (std::find(inodes.begin(), inodes.end(), ino) == inodes.end()) continue;
+      c.drops += std::strtoull(drops.c_str(), nullptr, 10);
+      const auto colon = queues.find(':');
+      if (colon != std::string::npos)
+        c.rx_queue_max = std::max<std::uint64_t>(c.rx_queue_max, std::strtoull(queues.c_str() + colon + 1, nullptr, 16));
+    }
+  }
+  return c;
+}
+
 struct Row {
   double t_s = 0;
   long rss_kib = 0;
   double cpu_percent = 0;
   std::array<std::uint64_t, 3> received{};
   std::uint64_t gaps = 0, out_of_order = 0, deadline_missed = 0;
+  std::uint64_t udp_drops = 0;         ///< datagrams the kernel dropped at this process' UDP sockets
+  std::uint64_t rx_queue_max = 0;      ///< largest receive queue seen [bytes]
+  std::uint64_t write_failures = 0;    ///< the publisher's failed state writes (ve/diagnostics)
   double p50 = 0, p99 = 0, p999 = 0, max = 0;
   double load1 = 0;  ///< the host's 1-minute load average
 };
@@ -282,6 +382,7 @@ struct Options {
   int domain = 78;
   std::string machine = std::string(VE_BENCH_SOURCE_DIR) + "/config/machines/sim-3axis.yaml";
   std::string out = std::string(VE_BENCH_SOURCE_DIR) + "/tests/bench/results/soak.md";
+  std::string profiles;  ///< FASTRTPS_DEFAULT_PROFILES_FILE for both processes; empty: built-in QoS
   bool write = true;
 };
 
@@ -313,6 +414,9 @@ int run(const Options& opt) {
   const std::string log = "/tmp/bench_soak_run_" + std::to_string(getpid()) + ".log";
   std::remove(log.c_str());
   const double soak_s = opt.minutes * 60.0;
+  // Both processes: this one's participant and the publisher (it inherits the environment).
+  if (!opt.profiles.empty()) setenv("FASTRTPS_DEFAULT_PROFILES_FILE", opt.profiles.c_str(), 1);
+  else unsetenv("FASTRTPS_DEFAULT_PROFILES_FILE");
 
   ve::app::DdsOptions o;
   o.domain = opt.domain;
@@ -324,8 +428,9 @@ int run(const Options& opt) {
     return 1;
   }
   Collector col;
-  auto reader = std::make_unique<ve::app::StateReader>(*ctx, kRequestedDeadlineMs,
-                                                       [&col](const ve::dds::EncoderState& s) { col.on_sample(s); });
+  auto reader = std::make_unique<ve::app::StateReader>(
+      *ctx, kRequestedDeadlineMs, [&col](const ve::dds::EncoderState& s) { col.on_sample(s); },
+      [&col](const ve::dds::Diagnostics& d) { col.on_diagnostics(d); });
   if (!reader->ok()) {
     std::fprintf(stderr, "cannot create the readers\n");
     return 1;
@@ -369,10 +474,27 @@ int run(const Options& opt) {
     col.total.clear();
     col.interval_latency.reset();
   }
-  std::printf("soak: %s, %.1f min, a row every %.0f s; publisher pid %d (log %s)\n", opt.machine.c_str(), opt.minutes,
-              opt.interval_s, pub.pid(), log.c_str());
-  std::printf("| t [s] | RSS [MiB] | CPU [%%] | samples x / y / z | gaps | deadline misses | latency p50 / p99 / p99.9 / max [us] | host load |\n");
-  std::printf("|---|---|---|---|---|---|---|---|\n");
+  // This process' UDP sockets (created with the participant; the shared-memory
+  // transport opens none).
+  const UdpSockets sockets = own_udp_sockets();
+  const std::uint64_t drops_at_start = udp_counters(sockets.inodes).drops;
+  auto write_failures = [&col] {
+    std::lock_guard<std::mutex> lock(col.mutex);
+    std::uint64_t n = 0;
+    for (const auto& [id, p] : col.published) n += p.write_failures;
+    return n;
+  };
+  const std::uint64_t write_failures_at_start = write_failures();
+  std::printf("soak: %s, %.1f min, a row every %.0f s; publisher pid %d (log %s); QoS %s; subscriber: %zu UDP "
+              "sockets, SO_RCVBUF %d..%d bytes\n",
+              opt.machine.c_str(), opt.minutes, opt.interval_s, pub.pid(), log.c_str(),
+              opt.profiles.empty() ? "built-in" : opt.profiles.c_str(), sockets.inodes.size(), sockets.min_rcvbuf,
+              sockets.max_rcvbuf);
+  const char* header =
+      "| t [s] | RSS [MiB] | CPU [%] | samples x / y / z | gaps | UDP drops (subscriber) | rx queue max [KiB] | "
+      "write failures | deadline misses | latency p50 / p99 / p99.9 / max [us] | host load |\n"
+      "|---|---|---|---|---|---|---|---|---|---|---|\n";
+  std::printf("%s", header);
   std::fflush(stdout);
 
   std::vector<Row> rows;
@@ -381,9 +503,16 @@ int run(const Options& opt) {
   std::int64_t last_t = t0;
   std::uint64_t last_missed = deadline_missed();
   const std::uint64_t missed_at_start = last_missed;
+  std::uint64_t last_drops = drops_at_start, last_write_failures = write_failures_at_start;
+  std::uint64_t rx_queue_max_total = 0;
+  Histogram row_latency;  // the interval's histogram, swapped out of the collector
   for (int k = 1;; ++k) {
     const std::int64_t due = t0 + static_cast<std::int64_t>(std::min(k * opt.interval_s, soak_s) * 1e9);
-    while (mono_ns() < due && pub.alive()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    std::uint64_t rx_queue_max = 0;
+    while (mono_ns() < due && pub.alive()) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      rx_queue_max = std::max(rx_queue_max, udp_counters(sockets.inodes).rx_queue_max);
+    }
     if (!pub.alive()) {
       std::fprintf(stderr, "the publisher ended early; see %s\n", log.c_str());
       return 1;
@@ -400,7 +529,18 @@ int run(const Options& opt) {
     const std::uint64_t missed = deadline_missed();
     r.deadline_missed = missed - last_missed;
     last_missed = missed;
+    const UdpCounters udp = udp_counters(sockets.inodes);
+    r.udp_drops = udp.drops - last_drops;
+    last_drops = udp.drops;
+    r.rx_queue_max = std::max(rx_queue_max, udp.rx_queue_max);
+    rx_queue_max_total = std::max(rx_queue_max_total, r.rx_queue_max);
+    const std::uint64_t wf = write_failures();
+    r.write_failures = wf - last_write_failures;
+    last_write_failures = wf;
+    row_latency.reset();
     {
+      // Only swaps under the lock: the listener thread (which also drains the
+      // socket) is never held up by the percentiles, the merge or the reset.
       std::lock_guard<std::mutex> lock(col.mutex);
       for (std::uint32_t id = 1; id <= 3; ++id) {
         const AxisCount& a = col.interval[id];
@@ -408,19 +548,20 @@ int run(const Options& opt) {
         r.gaps += a.gaps;
         r.out_of_order += a.out_of_order;
       }
-      r.p50 = col.interval_latency.pct_us(0.50);
-      r.p99 = col.interval_latency.pct_us(0.99);
-      r.p999 = col.interval_latency.pct_us(0.999);
-      r.max = col.interval_latency.max_us();
-      col.total_latency.merge(col.interval_latency);
-      col.interval_latency.reset();
       col.interval.clear();
+      row_latency.swap(col.interval_latency);
     }
+    r.p50 = row_latency.pct_us(0.50);
+    r.p99 = row_latency.pct_us(0.99);
+    r.p999 = row_latency.pct_us(0.999);
+    r.max = row_latency.max_us();
+    col.total_latency.merge(row_latency);  // the main thread's alone
     rows.push_back(r);
     std::printf("| %.0f | %.1f | %.1f | %" PRIu64 " / %" PRIu64 " / %" PRIu64 " | %" PRIu64 " | %" PRIu64
-                " | %.0f / %.0f / %.0f / %.0f | %.1f |\n",
+                " | %.0f | %" PRIu64 " | %" PRIu64 " | %.0f / %.0f / %.0f / %.0f | %.1f |\n",
                 r.t_s, r.rss_kib / 1024.0, r.cpu_percent, r.received[0], r.received[1], r.received[2], r.gaps,
-                r.deadline_missed, r.p50, r.p99, r.p999, r.max, r.load1);
+                r.udp_drops, r.rx_queue_max / 1024.0, r.write_failures, r.deadline_missed, r.p50, r.p99, r.p999,
+                r.max, r.load1);
     std::fflush(stdout);
     if (r.t_s >= soak_s - 1e-3) break;
   }
@@ -428,12 +569,15 @@ int run(const Options& opt) {
   Histogram total_latency;
   std::map<std::uint32_t, AxisCount> totals;
   std::uint64_t stale_before = 0;
+  std::map<std::uint32_t, Collector::Published> published;
+  total_latency.merge(col.total_latency);
   {
     std::lock_guard<std::mutex> lock(col.mutex);
-    total_latency.merge(col.total_latency);
     totals = col.total;
     stale_before = col.stale;
+    published = col.published;
   }
+  const std::uint64_t soak_drops = udp_counters(sockets.inodes).drops - drops_at_start;
   const std::uint64_t soak_missed = deadline_missed() - missed_at_start;
 
   // Restarts: SIGKILL, 200 ms (RestartSec), exec; time to the first sample, and to all axes.
@@ -521,16 +665,29 @@ int run(const Options& opt) {
         "(3 simulated axes, 4 kHz each, no `realtime:` settings), a subscriber in the benchmark process (product "
         "StateReader, 10 ms requested deadline). Latency = subscriber's CLOCK_REALTIME at the hand-over minus the "
         "sample's `source_time_ns` (estimator + write + transport + take). Not a ctest test.\n\n";
+  md += fmt("QoS: %s. The subscriber (participant `ve_participant` or its built-in equivalent) receives over UDPv4 "
+            "(loopback): %zu UDP sockets, SO_RCVBUF %d..%d bytes (as the "
+            "kernel accounts it, twice the size asked for). *UDP drops* = datagrams the kernel dropped at those sockets "
+            "because a receive buffer was full (/proc/net/udp), *rx queue max* = the largest receive queue seen "
+            "(sampled every 50 ms), *write failures* = the publisher's failed state writes (ve/diagnostics).\n\n",
+            opt.profiles.empty() ? "the product's built-in QoS (no profiles file)"
+                                 : ("XML profiles " + opt.profiles + " (FASTRTPS_DEFAULT_PROFILES_FILE, both processes)").c_str(),
+            sockets.inodes.size(), sockets.min_rcvbuf, sockets.max_rcvbuf);
+  md += "Where samples were lost before (issue 7): every sequence gap was a datagram the kernel dropped at the "
+        "subscriber's UDP socket, whose receive buffer (Linux default 208 KiB, about 166 datagrams = 14 ms of the "
+        "3-axis stream) overflowed while the subscriber's receive thread was descheduled; the publisher wrote every "
+        "sample. The product's transports now ask for 4 MiB socket buffers and an 8192-message shared-memory port "
+        "queue (deploy/dds-profiles.xml, README.md \"DDS interface\").\n\n";
   md += fmt("Host: %s. Run: %.1f min, a row every %.0f s, warm-up %.0f s. The host load column is the 1-minute load "
             "average of the whole host (other work included): gaps, misses and the latency tail follow it.\n\n",
             host_line().c_str(), opt.minutes, opt.interval_s, opt.warmup_s);
-  md += "| t [s] | RSS [MiB] | CPU [%] | samples x / y / z | gaps | deadline misses | latency p50 / p99 / p99.9 / max [us] | host load |\n";
-  md += "|---|---|---|---|---|---|---|---|\n";
+  md += header;
   for (const auto& r : rows)
     md += fmt("| %.0f | %.1f | %.1f | %" PRIu64 " / %" PRIu64 " / %" PRIu64 " | %" PRIu64 " | %" PRIu64
-              " | %.0f / %.0f / %.0f / %.0f | %.1f |\n",
+              " | %.0f | %" PRIu64 " | %" PRIu64 " | %.0f / %.0f / %.0f / %.0f | %.1f |\n",
               r.t_s, r.rss_kib / 1024.0, r.cpu_percent, r.received[0], r.received[1], r.received[2], r.gaps,
-              r.deadline_missed, r.p50, r.p99, r.p999, r.max, r.load1);
+              r.udp_drops, r.rx_queue_max / 1024.0, r.write_failures, r.deadline_missed, r.p50, r.p99, r.p999,
+              r.max, r.load1);
   md += "\n## Summary\n\n";
   md += "| figure | value | target |\n|---|---|---|\n";
   md += fmt("| memory after warm-up (t = %.0f s → %.0f s) | %.1f → %.1f MiB (%+.0f KiB; slope %+.0f KiB/min) | no growth |\n",
@@ -546,6 +703,20 @@ int run(const Options& opt) {
     }
   md += fmt("| sequence gaps, whole run | %" PRIu64 " (%s); out of order %" PRIu64 " | 0 |\n", gaps, per_axis.c_str(), ooo);
   md += fmt("| sequence gaps after warm-up | %" PRIu64 " | 0 |\n", warm_gaps);
+  {
+    std::uint64_t pub_samples = 0, pub_skipped = 0, pub_failures = 0;
+    for (const auto& [id, p] : published) {
+      pub_samples += p.samples;
+      pub_skipped += p.skipped;
+      pub_failures += p.write_failures;
+    }
+    md += fmt("| where: UDP datagrams dropped at the subscriber's sockets (receive buffer full), whole run | %" PRIu64
+              " (largest receive queue seen %.0f KiB of %d) | 0 |\n",
+              soak_drops, rx_queue_max_total / 1024.0, sockets.max_rcvbuf);
+    md += fmt("| where: publisher's failed state writes / samples skipped by its sources (ve/diagnostics, since start) "
+              "| %" PRIu64 " / %" PRIu64 " (of %" PRIu64 " published) | 0 |\n",
+              pub_failures, pub_skipped, pub_samples);
+  }
   md += fmt("| requested-deadline misses (10 ms), whole run / after warm-up | %" PRIu64 " / %" PRIu64 " | – |\n",
             soak_missed, warm_missed);
   md += fmt("| latency p50 / p99 / p99.9 / max | %.0f / %.0f / %.0f / %.0f us (%" PRIu64 " samples) | – |\n",
@@ -590,11 +761,12 @@ int main(int argc, char** argv) {
     else if (a == "--restarts") opt.restarts = std::atoi(next().c_str());
     else if (a == "--machine") opt.machine = next();
     else if (a == "--domain") opt.domain = std::atoi(next().c_str());
+    else if (a == "--profiles") opt.profiles = next();
     else if (a == "--out") opt.out = next();
     else if (a == "--no-write") opt.write = false;
     else {
       std::printf("usage: %s [--minutes M (2)] [--interval-s S (10)] [--warmup-s S (30)] [--restarts N (5)]\n"
-                  "          [--machine FILE] [--domain D (78)] [--out FILE | --no-write]\n"
+                  "          [--machine FILE] [--domain D (78)] [--profiles FILE] [--out FILE | --no-write]\n"
                   "long soak: --minutes 240 --interval-s 300\n",
                   argv[0]);
       return a == "--help" || a == "-h" ? 0 : 2;

@@ -800,8 +800,9 @@ TEST(Replay, RealtimePacesByTimestamps) {
   while (src.read(s) == ReadStatus::ok) ++rows;
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   EXPECT_EQ(rows, 200);
+  // Paced: it cannot be faster than the log's own time span (no upper bound: a loaded
+  // machine only makes it slower).
   EXPECT_GE(ms, 25.0);
-  EXPECT_LE(ms, 1000.0);
 }
 
 TEST(Replay, StopInterruptsRealtime) {
@@ -821,7 +822,8 @@ TEST(Replay, StopInterruptsRealtime) {
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   stopper.join();
   EXPECT_GE(ms, 40.0);
-  EXPECT_LT(ms, 500.0);
+  // Woken by stop(), not by the row 10 s later.
+  EXPECT_LT(ms, 5000.0);
   EXPECT_EQ(src.read(s), ReadStatus::stopped);
 }
 
