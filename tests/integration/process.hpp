@@ -46,7 +46,10 @@ class ChildProcess {
 
   bool started() const { return pid_ > 0; }
   pid_t pid() const { return pid_; }
-  void signal(int sig) const { kill(pid_, sig); }
+  /// Never with pid -1 (a failed spawn): that would signal every process we may signal.
+  void signal(int sig) const {
+    if (pid_ > 0) kill(pid_, sig);
+  }
 
   /// Waits up to timeout for the exit; returns the exit code, or -1 on timeout or a signal death.
   int wait_exit(std::chrono::milliseconds timeout) {
