@@ -102,9 +102,7 @@ bool AxisPipeline::acquire(const RawSample& sample) {
   homed_ = homed;
   // Signature homing: search (not homed) or check the start position (homed from a
   // configured or kept position) on the first motion.
-  if (cfg_.signature_homing) {
-    if (!homed_ || !started_) homing_.start(hall_, fix.position_m);
-  }
+  if (cfg_.signature_homing && (!homed_ || !started_)) homing_.start(hall_, fix.position_m);
   started_ = true;
   rejected_in_row_ = 0;
   without_fix_in_row_ = 0;

@@ -19,17 +19,11 @@ namespace {
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 using ve::test::ChildProcess;
+using ve::test::read_file;
 
-constexpr int kDomain = 76;
+constexpr int kDomain = 85;  // its own: no other test uses it
 
 using ve::test::TempDir;
-
-std::string read_file(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 
 /// The shipped realistic machine (its calibration matches its simulated track), with
 /// signature homing, a state file in `dir` and the given motion profile.

@@ -20,6 +20,14 @@ extern char** environ;
 
 namespace ve::test {
 
+/// The whole content of a text file ("" if it cannot be read).
+inline std::string read_file(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
 class ChildProcess {
  public:
   ChildProcess(const std::vector<std::string>& args, const std::string& log_path) : log_path_(log_path) {

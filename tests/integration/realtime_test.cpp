@@ -25,18 +25,12 @@
 namespace {
 
 using namespace std::chrono_literals;
+using ve::test::read_file;
 namespace fs = std::filesystem;
 
 constexpr int kDomain = 76;
 constexpr int kCapIpcLock = 14;
 constexpr int kCapSysNice = 23;
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 /// Value of a "Key:\tvalue" line of a /proc status file.
 std::string status_field(const std::string& status_path, const std::string& key) {
