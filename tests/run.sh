@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The test command: set up, build, fuzz every parser for a bounded time, run the suite
-# under ASan+UBSan, then the integration tests under ThreadSanitizer, then run every test
+# under ASan+UBSan, then again under ThreadSanitizer, then run every test
 # (unit, real-process DDS, Cyclone interop, SocketCAN in a VM).
 # A failing stage stops the run there, its report last.
 set -euo pipefail
@@ -19,8 +19,8 @@ stage fuzz bash tests/fuzz/run.sh "${VE_FUZZ_SECONDS:-20}"
 # The unit, integration and install tests again in build-asan, under AddressSanitizer +
 # UndefinedBehaviorSanitizer (tests/sanitizers/run.sh says what is left out, and why).
 stage "ASan+UBSan test suite" bash tests/sanitizers/run.sh asan
-# The integration tests again in build-tsan, under ThreadSanitizer (the unit tests are
-# single-threaded; tests/sanitizers/run.sh says which integration tests are left out).
+# The unit, integration and install tests again in build-tsan, under ThreadSanitizer
+# (tests/sanitizers/run.sh says what is left out, and why).
 stage "TSan test suite" bash tests/sanitizers/run.sh tsan
 # Shared-memory segments left by a crashed DDS process would confuse the next run.
 fastdds shm clean >/dev/null 2>&1 || true

@@ -14,7 +14,8 @@
 //     the deadline misses on both sides;
 //  4. CPU of `virtual-encoder run` (built-in sim machine, one axis at 4 kHz) from
 //     /proc/PID/stat and per thread, with a shared-memory subscriber, with a built-in
-//     transports subscriber, and with none.
+//     transports subscriber, and with none; and the pacing floor (a thread that only
+//     sleeps until each 4 kHz sample is due).
 // Latency = subscriber's CLOCK_REALTIME when the sample is handed to it (the
 // product's per-sample callback / the bare listener right after take) minus the
 // sample's publish_time_ns, stamped just before write(); one host, one clock.
@@ -22,7 +23,7 @@
 // Not a ctest test and no timing asserts: it prints a table and writes it as
 // Markdown to tests/bench/results/dds_latency.md.
 //
-//   bench_dds_latency [--rounds N] [--round-s S] [--rate-s S] [--cpu-s S]
+//   bench_dds_latency [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S]
 //                     [--domain D] [--out FILE | --no-write]
 // The subscriber side is this program again:
 //   bench_dds_latency --sub product|product-nodl|bare --transport shm|udp|builtin --profiles FILE ...
@@ -78,6 +79,7 @@
 #include "VirtualEncoder.h"
 #include "VirtualEncoderPubSubTypes.h"
 #include "app/dds_io.hpp"
+#include "pacing.hpp"
 
 #ifndef VE_BINARY
 #define VE_BINARY "virtual-encoder"
@@ -881,6 +883,32 @@ CpuResult measure_cpu(int domain, double seconds, const std::string& sub_transpo
   return r;
 }
 
+/// The platform's floor for a 4 kHz sample loop: CPU of a thread that only sleeps
+/// until each sample is due, with the product's own pacing (drivers/pacing.cpp), and
+/// does nothing else. Every implementation that wakes once per sample pays this.
+struct FloorResult {
+  double window_s = 0, cpu_s = 0, percent = 0, per_wake_us = 0;
+  std::uint64_t wakes = 0;
+};
+FloorResult measure_pacing_floor(double seconds, double rate_hz) {
+  FloorResult r;
+  std::thread t([&] {
+    std::atomic<bool> stop{false};
+    const auto period_ns = static_cast<std::int64_t>(1e9 / rate_hz);
+    const std::int64_t start = ve::drivers::monotonic_ns() + period_ns;
+    const auto n = static_cast<std::uint64_t>(seconds * rate_hz);
+    const double c0 = thread_cpu_s();
+    for (std::uint64_t k = 0; k < n; ++k) ve::drivers::sleep_until(start + static_cast<std::int64_t>(k) * period_ns, stop);
+    r.cpu_s = thread_cpu_s() - c0;
+    r.window_s = (ve::drivers::monotonic_ns() - start) * 1e-9;
+    r.wakes = n;
+  });
+  t.join();
+  r.percent = r.window_s > 0 ? 100.0 * r.cpu_s / r.window_s : 0.0;
+  r.per_wake_us = r.wakes ? 1e6 * r.cpu_s / r.wakes : 0.0;
+  return r;
+}
+
 // ------------------------------------------------------------------ report
 
 std::string fmt(const char* f, ...) __attribute__((format(printf, 1, 2)));
@@ -898,7 +926,8 @@ std::string verdict(bool met) { return met ? "met" : "MISSED"; }
 struct Options {
   int rounds = 3;         // product/bare latency rounds (interleaved)
   double round_s = 2.5;   // seconds per latency round (4 kHz)
-  double rate_s = 3.0;    // seconds per sustained-rate run
+  double rate_s = 30.0;   // seconds of the paced 20 kHz run (the sustained rate)
+  double max_s = 3.0;     // seconds of each as-fast-as-it-can run
   double cpu_s = 10.0;    // CPU window of `virtual-encoder run`
   int domain = 80;        // uses domain .. domain+12 (Linux: keep the ports below the ephemeral range)
   std::string out = std::string(VE_BENCH_SOURCE_DIR) + "/tests/bench/results/dds_latency.md";
@@ -1000,8 +1029,8 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   const double r50b = ratio(PB.s.p50_us, BB.s.p50_us), r99b = ratio(PB.s.p99_us, BB.s.p99_us);
 
   // 3: sustained rate through the product's writer/reader (shared memory, as a local consumer).
-  std::fprintf(stderr, "  sustained rate: product writer as fast as it can for %.1f s ...\n", opt.rate_s);
-  PubResult max_rate = run_pair_retry("product", "shm", opt.domain + 3, 0.0, opt.rate_s, 0);
+  std::fprintf(stderr, "  sustained rate: product writer as fast as it can for %.1f s ...\n", opt.max_s);
+  PubResult max_rate = run_pair_retry("product", "shm", opt.domain + 3, 0.0, opt.max_s, 0);
   if (!max_rate.ok) {
     std::fprintf(stderr, "    FAILED: %s\n", max_rate.error.c_str());
     return 1;
@@ -1012,8 +1041,8 @@ int orchestrator_main(const Options& opt, const std::string& command) {
     std::fprintf(stderr, "    FAILED: %s\n", paced.error.c_str());
     return 1;
   }
-  std::fprintf(stderr, "  sustained rate: bare writer as fast as it can for %.1f s (reference) ...\n", opt.rate_s);
-  PubResult bare_max = run_pair_retry("bare", "shm", opt.domain + 5, 0.0, opt.rate_s, 0);
+  std::fprintf(stderr, "  sustained rate: bare writer as fast as it can for %.1f s (reference) ...\n", opt.max_s);
+  PubResult bare_max = run_pair_retry("bare", "shm", opt.domain + 5, 0.0, opt.max_s, 0);
   if (!bare_max.ok) {
     std::fprintf(stderr, "    FAILED: %s\n", bare_max.error.c_str());
     return 1;
@@ -1048,6 +1077,10 @@ int orchestrator_main(const Options& opt, const std::string& command) {
                  c.r.axis_thread_percent, c.r.other_threads_percent);
   }
   const CpuResult& cpu = cpu_runs[0].r;
+  std::fprintf(stderr, "  CPU: pacing floor (a thread that only sleeps until each 4 kHz sample is due) for %.1f s ...\n",
+               opt.cpu_s);
+  const FloorResult floor = measure_pacing_floor(opt.cpu_s, 4000.0);
+  std::fprintf(stderr, "    %.2f %% of a core (%.1f us per wake-up)\n", floor.percent, floor.per_wake_us);
 
   // ---- table
   char date[64];
@@ -1129,10 +1162,10 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   md << rate_row("product, as fast as it can", max_rate) << "\n";
   md << rate_row("product, paced 20 kHz", paced) << "\n";
   md << rate_row("bare, as fast as it can (reference)", bare_max) << "\n\n";
-  md << fmt("%.1f s per run. Lost = published - received (best effort: nothing is retransmitted); seq gaps = holes\n"
-            "in the received sequence numbers. Above 5 kHz the publisher writes the samples due in each 1 ms tick\n"
-            "back to back.\n\n",
-            opt.rate_s);
+  md << fmt("The paced run lasts %.1f s, the as-fast-as-it-can runs %.1f s each. Lost = published - received (best\n"
+            "effort: nothing is retransmitted); seq gaps = holes in the received sequence numbers. Above 5 kHz the\n"
+            "publisher writes the samples due in each 1 ms tick back to back.\n\n",
+            opt.rate_s, opt.max_s);
   md << "## 4. CPU of `virtual-encoder run` (built-in sim machine, one axis, 4 kHz)\n\n";
   md << "| run | window [s] | CPU [s] | CPU per axis [% of one core] | sample thread [%] | other threads [%] | "
         "incl. start-up [%] | samples at the subscriber |\n|---|---|---|---|---|---|---|---|\n";
@@ -1141,6 +1174,12 @@ int orchestrator_main(const Options& opt, const std::string& command) {
               c.r.percent, c.r.axis_thread_percent, c.r.other_threads_percent, c.r.lifetime_percent,
               c.transport.empty() ? "-"
                                   : fmt("%" PRIu64 " (%.0f Hz)", c.r.sub.received, c.r.sub.rate_hz).c_str());
+  md << fmt("| pacing floor: a thread that only sleeps until each sample is due (drivers/pacing.cpp), no work | "
+            "%.2f | %.3f | **%.2f** | %.2f | - | - | - (%.1f us per wake-up) |\n",
+            floor.window_s, floor.cpu_s, floor.percent, floor.percent, floor.per_wake_us);
+  md << "\nThe pacing floor is what waking up 4000 times a second costs on this host, before any work: every\n"
+        "implementation that handles each sample when it is due pays it (on this virtual machine a timer wake-up\n"
+        "is expensive). It bounds from below what the 5 % target can be measured against here.\n";
   md << "\n`run` uses the built-in QoS (shared memory and UDPv4), except with the shared-memory subscriber: a\n"
         "shared-memory-only participant did not discover the built-in-transport one here, so `run` then gets a\n"
         "shared-memory-only `ve_participant` from FASTRTPS_DEFAULT_PROFILES_FILE. utime+stime of the whole\n"
@@ -1155,8 +1194,9 @@ int orchestrator_main(const Options& opt, const std::string& command) {
             " misses; max %.0f Hz with %" PRIu64 " lost | %s |\n",
             paced.sub.rate_hz, lost(paced), paced.offered_deadline_missed, paced.sub.deadline_missed,
             max_rate.sub.rate_hz, lost(max_rate), verdict(rate_ok).c_str());
-  md << fmt("| <= 5 %% of one core per axis at 4 kHz | %.2f %% (shared-memory subscriber) | %s |\n", cpu.percent,
-            verdict(cpu.percent <= 5.0).c_str());
+  md << fmt("| <= 5 %% of one core per axis at 4 kHz | %.2f %% (shared-memory subscriber); pacing floor alone %.2f %% | "
+            "%s |\n",
+            cpu.percent, floor.percent, verdict(cpu.percent <= 5.0).c_str());
 
   md << "\nDiscovery retries (a fresh pair of processes that did not match within 10 s, started again): "
      << g_match_retries << ".\n";
@@ -1224,11 +1264,12 @@ int main(int argc, char** argv) {
     else if (a == "--rounds") opt.rounds = std::max(1, std::atoi(next().c_str()));
     else if (a == "--round-s") opt.round_s = std::atof(next().c_str());
     else if (a == "--rate-s") opt.rate_s = std::atof(next().c_str());
+    else if (a == "--max-s") opt.max_s = std::atof(next().c_str());
     else if (a == "--cpu-s") opt.cpu_s = std::atof(next().c_str());
     else if (a == "--out") opt.out = next();
     else if (a == "--no-write") opt.write = false;
     else if (a == "--help" || a == "-h") {
-      std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--cpu-s S] [--domain D(..D+12)] "
+      std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S] [--domain D(..D+12)] "
                   "[--out FILE | --no-write]\n",
                   argv[0]);
       return 0;

@@ -19,6 +19,7 @@
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "process.hpp"
+#include "speed.hpp"
 #include "temp_dir.hpp"
 
 namespace {
@@ -151,13 +152,13 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
   ASSERT_TRUE(req.ok());
   ChildProcess pub(run_args(machine, domain), (dir.path / "run.log").string());
   ASSERT_TRUE(pub.started());
-  ASSERT_TRUE(wait_until([&] { return req.commands->matched_readers() > 0 && req.received(kAxis) > 4000; }, 20s))
+  ASSERT_TRUE(wait_until([&] { return req.commands->matched_readers() > 0 && req.received(kAxis) > 4000; }, ve::test::patience(20s)))
       << "matched " << req.commands->matched_readers() << " received " << req.received(kAxis) << "\n" << pub.log();
 
   // Unknown axis: failed, with the reason.
   req.send(99, ve::dds::CALIBRATION_CMD_START, 1);
   ve::dds::CalibrationStatus unknown;
-  ASSERT_TRUE(wait_until([&] { return req.final_status(1, unknown); }, 5s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return req.final_status(1, unknown); }, ve::test::patience(5s))) << pub.log();
   EXPECT_EQ(unknown.state(), ve::dds::CALIBRATION_STATE_FAILED);
   EXPECT_EQ(unknown.axis_id(), 99u);
   EXPECT_NE(unknown.message().find("no axis with id 99"), std::string::npos) << unknown.message();
@@ -166,7 +167,7 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
   // 5 mm/s (40 s of sweep motion): more work for the worker than the default 20 mm/s.
   req.send(kAxis, ve::dds::CALIBRATION_CMD_START, 42, 0.005);
   ve::dds::CalibrationStatus done;
-  ASSERT_TRUE(wait_until([&] { return req.final_status(42, done); }, 90s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return req.final_status(42, done); }, ve::test::patience(90s))) << pub.log();
   std::this_thread::sleep_for(200ms);  // the samples published up to the end are delivered
   std::vector<ve::dds::CalibrationStatus> mine;
   for (const auto& s : req.status->received())
@@ -224,12 +225,16 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
   EXPECT_EQ(loaded.calibration.info.id, done.calibration_id());
   EXPECT_NEAR(loaded.calibration.model.hall_delay_s, 20e-6, 2e-6);
 
-  // The state stream went on at ~4 kHz without gaps worth mentioning.
-  EXPECT_LE(gaps, 5u);
+  // The state stream went on at ~4 kHz without gaps worth mentioning, never blocked
+  // by the worker (the work itself takes far longer than 50 ms). Figures of the
+  // real-time stream: judged at real speed only (speed.hpp).
   EXPECT_GT(seconds, 0.2);
-  EXPECT_NEAR(rate, 4000.0, 400.0);
-  // Never blocked by the worker (the work itself takes far longer than this).
-  EXPECT_LT(max_interval_ms, 50.0);
+  EXPECT_GT(published, 0u);
+  if (ve::test::kRealTimeFigures) {
+    EXPECT_LE(gaps, 5u);
+    EXPECT_NEAR(rate, 4000.0, 400.0);
+    EXPECT_LT(max_interval_ms, 50.0);
+  }
 
   // A late joiner gets the last status of the axis (transient local).
   {
@@ -242,7 +247,7 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
     ve::dds::CalibrationStatus last;
     {
       ve::app::CalibrationStatusReader late(*ctx);
-      ASSERT_TRUE(wait_until([&] { return late.last(kAxis, last); }, 10s));
+      ASSERT_TRUE(wait_until([&] { return late.last(kAxis, last); }, ve::test::patience(10s)));
     }
     EXPECT_EQ(last.state(), ve::dds::CALIBRATION_STATE_DONE);
     EXPECT_EQ(last.request_id(), 42u);
@@ -250,7 +255,7 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
   }
 
   pub.signal(SIGINT);
-  EXPECT_EQ(pub.wait_exit(20s), 0) << pub.log();
+  EXPECT_EQ(pub.wait_exit(ve::test::patience(20s)), 0) << pub.log();
 }
 
 TEST(CalibrationDds, AbortStopsItPromptlyAndWritesNothing) {
@@ -261,7 +266,7 @@ TEST(CalibrationDds, AbortStopsItPromptlyAndWritesNothing) {
   ASSERT_TRUE(req.ok());
   ChildProcess pub(run_args(machine, domain), (dir.path / "run.log").string());
   ASSERT_TRUE(pub.started());
-  ASSERT_TRUE(wait_until([&] { return req.commands->matched_readers() > 0 && req.received(kAxis) > 0; }, 20s))
+  ASSERT_TRUE(wait_until([&] { return req.commands->matched_readers() > 0 && req.received(kAxis) > 0; }, ve::test::patience(20s)))
       << pub.log();
 
   // A slow sweep (2 mm/s: 100 s of motion) keeps it recording long enough.
@@ -277,28 +282,28 @@ TEST(CalibrationDds, AbortStopsItPromptlyAndWritesNothing) {
   // Only one at a time: a second start is refused as busy.
   req.send(kAxis, ve::dds::CALIBRATION_CMD_START, 11);
   ve::dds::CalibrationStatus busy;
-  ASSERT_TRUE(wait_until([&] { return req.final_status(11, busy); }, 5s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return req.final_status(11, busy); }, ve::test::patience(5s))) << pub.log();
   EXPECT_EQ(busy.state(), ve::dds::CALIBRATION_STATE_FAILED);
   EXPECT_NE(busy.message().find("busy"), std::string::npos) << busy.message();
 
   const auto t0 = std::chrono::steady_clock::now();
   req.send(kAxis, ve::dds::CALIBRATION_CMD_ABORT, 12);
   ve::dds::CalibrationStatus aborted;
-  ASSERT_TRUE(wait_until([&] { return req.final_status(10, aborted); }, 10s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return req.final_status(10, aborted); }, ve::test::patience(10s))) << pub.log();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("abort took effect after %.3f s: %s (progress %.3f)\n", seconds, aborted.message().c_str(),
               aborted.progress());
   EXPECT_EQ(aborted.state(), ve::dds::CALIBRATION_STATE_ABORTED) << aborted.message();
   EXPECT_EQ(aborted.message().rfind("aborted", 0), 0u) << aborted.message();
   EXPECT_LT(aborted.progress(), 0.85);
-  EXPECT_LT(seconds, 1.0);
+  if (ve::test::kRealTimeFigures) EXPECT_LT(seconds, 1.0);
   EXPECT_FALSE(fs::exists(dir.path / "calibration" / "short-12.cal.yaml"));
 
   // The encoder kept running.
   const std::uint64_t n = req.received(kAxis);
-  ASSERT_TRUE(wait_until([&] { return req.received(kAxis) > n + 2000; }, 5s));
+  ASSERT_TRUE(wait_until([&] { return req.received(kAxis) > n + 2000; }, ve::test::patience(5s)));
   pub.signal(SIGINT);
-  EXPECT_EQ(pub.wait_exit(20s), 0) << pub.log();
+  EXPECT_EQ(pub.wait_exit(ve::test::patience(20s)), 0) << pub.log();
   EXPECT_NE(pub.log().find("abort of axis id 7 requested"), std::string::npos) << pub.log();
 }
 

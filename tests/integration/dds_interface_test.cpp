@@ -18,11 +18,14 @@
 #include "app/dds_io.hpp"
 #include "core/status.hpp"
 #include "process.hpp"
+#include "speed.hpp"
 
 namespace {
 
 using namespace std::chrono_literals;
 using ve::test::ChildProcess;
+using ve::test::kRealTimeFigures;
+using ve::test::patience;
 using ve::test::wait_until;
 
 std::string data(const std::string& name) { return std::string(VE_SOURCE_DIR) + "/tests/integration/data/" + name; }
@@ -106,8 +109,8 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
   ASSERT_TRUE(probe.ok());
   ChildProcess pub(run_args(data("standstill.yaml"), domain, 60, 10), "/tmp/ve_it_diagnostics.log");
   ASSERT_TRUE(pub.started());
-  ASSERT_TRUE(wait_until([&] { return probe.reader->matched_diagnostics_writers() > 0; }, 15s)) << pub.log();
-  ASSERT_TRUE(wait_until([&] { return probe.diagnostics_of(1) >= 15; }, 15s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return probe.reader->matched_diagnostics_writers() > 0; }, patience(15s))) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return probe.diagnostics_of(1) >= 15; }, patience(15s))) << pub.log();
 
   std::vector<ve::dds::Diagnostics> diags;
   std::vector<ve::dds::EncoderState> states;
@@ -124,7 +127,8 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
   const auto first_ns = diags.front().publish_time_ns();
   const auto last_ns = diags.back().publish_time_ns();
   const double rate = (diags.size() - 1) / ((last_ns - first_ns) * 1e-9);
-  EXPECT_NEAR(rate, 10.0, 2.0);
+  // The rates are figures of the real-time stream: judged at real speed only (speed.hpp).
+  if (kRealTimeFigures) EXPECT_NEAR(rate, 10.0, 2.0);
   const auto& d = diags.back();
   EXPECT_EQ(d.axis_id(), 1u);
   EXPECT_TRUE(d.status() & ve::core::status::kValid) << ve::core::status_to_string(d.status());
@@ -144,7 +148,7 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
   std::uint64_t samples = 0;
   for (std::size_t i = 1; i < diags.size(); ++i) samples += diags[i].period_samples();
   const double mean_rate = samples / ((last_ns - first_ns) * 1e-9);
-  EXPECT_NEAR(mean_rate, 4000.0, 400.0);
+  if (kRealTimeFigures) EXPECT_NEAR(mean_rate, 4000.0, 400.0);
   EXPECT_GT(d.sample_rate_hz(), 0.0);
   EXPECT_NEAR(d.arrival_period_mean_us() * d.sample_rate_hz() * 1e-6, 1.0, 0.2);
   EXPECT_GT(d.arrival_jitter_us(), 0.0);
@@ -187,7 +191,7 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
   EXPECT_EQ(a.diagnostics.axis_id(), 1u);
 
   pub.signal(SIGTERM);
-  EXPECT_EQ(pub.wait_exit(10s), 0) << pub.log();
+  EXPECT_EQ(pub.wait_exit(patience(10s)), 0) << pub.log();
   EXPECT_NE(pub.log().find("diagnostics"), std::string::npos) << pub.log();
 }
 
@@ -231,26 +235,26 @@ TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
   ChildProcess pub(run_args(data("three_axes.yaml"), domain, 60, 10), "/tmp/ve_it_three_axes.log");
   unsetenv("VE_TEST_STALL_AXIS");
   ASSERT_TRUE(pub.started());
-  ASSERT_TRUE(wait_until([&] { return probe.reader->matched_writers() > 0; }, 15s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return probe.reader->matched_writers() > 0; }, patience(15s))) << pub.log();
 
   // Three instances, each with its own values.
   ASSERT_TRUE(wait_until([&] { return probe.states_of(1) > 400 && probe.states_of(2) > 400 && probe.states_of(3) > 400; },
-                         10s))
+                         patience(10s)))
       << pub.log();
   const double expected_m[4] = {0, 0.2, 0.4, 0.6};
   for (std::uint32_t id = 1; id <= 3; ++id)
     EXPECT_NEAR(probe.stats(id).last.position_m(), expected_m[id], 1e-4) << "axis " << id;
 
   // Axis y stalls: its instance misses the requested deadline; x and z do not.
-  ASSERT_TRUE(wait_until([&] { return probe.stats(2).deadline_missed > 0; }, 10s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return probe.stats(2).deadline_missed > 0; }, patience(10s))) << pub.log();
   // Wait for the end of the stall and for y to publish again.
-  ASSERT_TRUE(wait_until([&] { return pub.log().find("stall over") != std::string::npos; }, 5s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return pub.log().find("stall over") != std::string::npos; }, patience(5s))) << pub.log();
   const auto y_after = probe.states_of(2);
-  ASSERT_TRUE(wait_until([&] { return probe.states_of(2) > y_after + 2000; }, 5s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return probe.states_of(2) > y_after + 2000; }, patience(5s))) << pub.log();
   // Diagnostics after the stall carry the offered misses per axis.
-  ASSERT_TRUE(wait_until([&] { return probe.stats(2).diagnostics.deadline_missed_total() >= 100; }, 5s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return probe.stats(2).diagnostics.deadline_missed_total() >= 100; }, patience(5s))) << pub.log();
   // The episode is over after 0.5 s without a miss.
-  ASSERT_TRUE(wait_until([&] { return pub.log().find("axis 'y' (id 2): deadline episode") != std::string::npos; }, 5s))
+  ASSERT_TRUE(wait_until([&] { return pub.log().find("axis 'y' (id 2): deadline episode") != std::string::npos; }, patience(5s)))
       << pub.log();
   std::this_thread::sleep_for(300ms);
 
@@ -291,7 +295,7 @@ TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
   EXPECT_LT(y_warnings * 20, y_offered) << "one warning per episode, not per miss\n" << log;
 
   pub.signal(SIGTERM);
-  EXPECT_EQ(pub.wait_exit(10s), 0) << pub.log();
+  EXPECT_EQ(pub.wait_exit(patience(10s)), 0) << pub.log();
 }
 
 TEST(DdsInterface, ProfilesFileGivesTheDocumentedQos) {

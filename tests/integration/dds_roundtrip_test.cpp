@@ -14,12 +14,15 @@
 #include "core/status.hpp"
 #include "app/dds_io.hpp"
 #include "process.hpp"
+#include "speed.hpp"
 #include "sim/motion_profile.hpp"
 
 namespace {
 
 using namespace std::chrono_literals;
 using ve::test::ChildProcess;
+using ve::test::kRealTimeFigures;
+using ve::test::patience;
 using ve::test::wait_until;
 
 std::string data(const std::string& name) { return std::string(VE_SOURCE_DIR) + "/tests/integration/data/" + name; }
@@ -75,10 +78,11 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
   ChildProcess pub(run_args(data("standstill.yaml"), domain, 60), "/tmp/ve_it_roundtrip.log");
   ASSERT_TRUE(pub.started());
 
-  ASSERT_TRUE(wait_until([&] { return sub.reader->matched_writers() > 0; }, 15s)) << pub.log();
-  ASSERT_TRUE(wait_until([&] { return sub.collector.size() >= 4000; }, 20s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return sub.reader->matched_writers() > 0; }, patience(15s))) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return sub.collector.size() >= 4000; }, patience(20s))) << pub.log();
 
-  // Sequence: strictly increasing, and on loopback essentially nothing lost.
+  // Sequence: strictly increasing, and on loopback essentially nothing lost (a figure
+  // of the real-time stream: judged at real speed only, see speed.hpp).
   const auto samples = sub.collector.copy();
   std::uint64_t gaps = 0;
   for (std::size_t i = 1; i < samples.size(); ++i) {
@@ -86,7 +90,7 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
     ASSERT_GT(samples[i].sample_time_ns(), samples[i - 1].sample_time_ns());
     gaps += samples[i].sequence_number() - samples[i - 1].sequence_number() - 1;
   }
-  EXPECT_LT(gaps, samples.size() / 100) << "more than 1 % of the samples lost on loopback";
+  if (kRealTimeFigures) EXPECT_LT(gaps, samples.size() / 100) << "more than 1 % of the samples lost on loopback";
 
   // Values: the simulated carriage stands at 0.3 m.
   double sum_sq = 0.0;
@@ -118,7 +122,7 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
           if (a.have_description) return true;
         return false;
       },
-      10s));
+      patience(10s)));
   for (const auto& a : sub.reader->snapshot()) {
     if (!a.have_description) continue;
     EXPECT_EQ(a.description.name(), "x");
@@ -127,24 +131,30 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
   }
 
   // Stall the publisher (a real stall: the process is stopped) longer than the
-  // requested deadline; the subscriber must see the deadline missed.
+  // requested deadline; the subscriber must see the deadline missed while it is
+  // stopped. At real speed that is 20 ms after the last sample; the stall lasts at
+  // least 300 ms, and as long as it takes a subscriber slowed by a sanitizer to work
+  // through what it had received before (up to patience(3s)).
   const auto missed_before = sub.reader->deadline_missed_total();
   pub.signal(SIGSTOP);
+  const auto stall_start = std::chrono::steady_clock::now();
   std::this_thread::sleep_for(300ms);
+  wait_until([&] { return sub.reader->deadline_missed_total() > missed_before; }, patience(3s));
   const auto missed_during = sub.reader->deadline_missed_total();
+  const double stall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - stall_start).count();
   pub.signal(SIGCONT);
-  EXPECT_GT(missed_during, missed_before) << "a 300 ms stall did not raise the 20 ms requested deadline";
+  EXPECT_GT(missed_during, missed_before) << "a " << stall_ms << " ms stall did not raise the 20 ms requested deadline";
   bool per_axis = false;
   for (const auto& a : sub.reader->snapshot()) per_axis = per_axis || (a.axis_id == 1 && a.deadline_missed > 0);
   EXPECT_TRUE(per_axis) << "the miss is not attributed to axis 1";
 
   // Publishing resumes after the stall.
   const auto after = sub.collector.size();
-  EXPECT_TRUE(wait_until([&] { return sub.collector.size() > after + 400; }, 5s));
+  EXPECT_TRUE(wait_until([&] { return sub.collector.size() > after + 400; }, patience(5s)));
 
   // SIGTERM: a clean exit with status 0.
   pub.signal(SIGTERM);
-  EXPECT_EQ(pub.wait_exit(10s), 0) << pub.log();
+  EXPECT_EQ(pub.wait_exit(patience(10s)), 0) << pub.log();
   EXPECT_NE(pub.log().find("published"), std::string::npos) << pub.log();
 }
 

@@ -3,15 +3,14 @@
 #   tests/sanitizers/run.sh asan   build-asan, -DVE_SANITIZE=address,undefined (ASan + LSan + UBSan)
 #   tests/sanitizers/run.sh tsan   build-tsan, -DVE_SANITIZE=thread
 #
-# What runs:
-#  - asan: every unit test, every integration test (real virtual-encoder processes talking
-#    over a real Fast DDS stack, the command line, the systemd notify/watchdog test) and the
-#    install-tree test;
-#  - tsan: the integration tests but those named below. The unit tests exercise
-#    single-threaded code only (the estimation core, the loaders, the simulator, the CAN
-#    layout), where ThreadSanitizer has nothing to find, and run 50 times slower under it
-#    (minutes per test).
-# The child processes the integration tests start are the sanitized binary too.
+# What runs, in both trees: every unit test, every integration test (real
+# virtual-encoder processes talking over a real Fast DDS stack, the command line, the
+# systemd notify/watchdog test) and the install-tree test. The child processes the
+# integration tests start are the sanitized binary too.
+# Under ThreadSanitizer the product and the tests run 5 to 15 times slower: the
+# integration tests that check real-time figures of the 4 kHz stream (rates, losses,
+# pauses, promptness) still run every step and check every behaviour there, waiting
+# longer, and judge those figures only at real speed (tests/integration/speed.hpp).
 # In the TSan tree every executable also carries tests/sanitizers/tsan_clock_interpose.cpp
 # (CMakeLists.txt): libtsan does not intercept pthread_mutex_clocklock, with which Fast DDS
 # takes its timed mutexes, and would report bogus races inside Fast DDS without it.
@@ -26,36 +25,6 @@
 #  - Realtime.WithoutPermissionWarnsOncePerSettingAndPublishes: it checks the warning for
 #    a refused mlockall(), and the sanitizer runtimes replace mlockall() by a no-op that
 #    succeeds (shadow memory cannot be locked), so the refusal never happens there.
-# Left out of the TSan tree only (they run in the ASan/UBSan tree and in the plain one):
-#  the tests whose verdict is a real-time figure of the 4 kHz stream. Under ThreadSanitizer
-#  the product and the test process run 5 to 15 times slower, so on a 2-core machine with
-#  any other work on it (a load of 3 to 8) the subscribers fall behind the stream and these
-#  figures fail with no bug behind them; on an idle one they mostly pass (seen: 1.9-3.2 kHz
-#  instead of 4 kHz +- 10 %, pauses of 0.4-1.2 s instead of < 50 ms, thousands of sequence
-#  gaps, a 300 ms stall that raises no 20 ms deadline because the subscriber is still
-#  working through its backlog):
-#  - CalibrationDds.StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing (rate,
-#    longest pause and gaps of the stream while a calibration runs);
-#  - CalibrationDds.AbortStopsItPromptlyAndWritesNothing (the abort within 1 s);
-#  - DdsInterface.DiagnosticsRoundTripBetweenTwoProcesses (the 4 kHz and 10 Hz rates);
-#  - DdsInterface.ThreeAxesAreThreeInstancesWithIndependentDeadlines (misses of the
-#    stalled axis against the others', 2000 samples within 5 s);
-#  - DdsRoundTrip.TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown (the miss
-#    during a 300 ms stall, fewer than 1 % lost);
-#  - DdsSecurity.OnlyThePermittedMonitorReadsTheState (4000 samples within 5 s). It also
-#    ends, in most runs, with a race between two of Fast DDS's own threads in its
-#    cryptography plugin (a crypto handle freed, from libfastrtps+0x6a1369, while
-#    another thread compares one of its strings), in functions that Debian's stripped
-#    libfastrtps does not name, so no suppression can name them;
-#  and CalibrationKill.KilledAtAnyMomentLeavesTheOldOrTheNewFileNeverABrokenOne: 14 runs
-#  of the single-threaded `calibrate` command, nothing for TSan to find, and past the
-#  test's 120 s limit under it.
-#  What these tests drive concurrently still runs under TSan in the others: a calibration
-#  started over DDS beside the axis thread, then aborted, with the security plugins
-#  (DdsSecurity.OnlyThePermittedMonitorStartsACalibration); two axis threads
-#  (Realtime.RunPinsEachSampleThreadToItsCpus); `run` with DDS subscribers in the test
-#  process and in `monitor` (DdsRoundTrip.PublishedPositionAtOneMetrePerSecondIsWithinSpec,
-#  DdsInterface.LateJoiningSubscriberReceivesTheAxisDescription, Restart, Service, ...).
 # Every sanitizer report fails the stage, including one from a child process that a test
 # stopped or whose exit code it does not look at: reports go to $BUILD/sanitizer-logs/
 # and any file there fails the run.
@@ -73,8 +42,7 @@ logs="$PWD/$build/sanitizer-logs"
 
 cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DVE_SANITIZE="$sanitize" \
   -DVE_BUILD_BENCHMARKS=OFF >/dev/null
-targets=(ve_integration_tests virtual-encoder)
-if [ "$kind" = asan ]; then targets+=(ve_unit_tests); fi
+targets=(ve_integration_tests virtual-encoder ve_unit_tests)
 cmake --build "$build" --parallel "$(nproc)" --target "${targets[@]}"
 
 rm -rf "$logs"
@@ -95,17 +63,8 @@ status=0
 # not built here, so its placeholder test (no labels) is left out too.
 labels='unit|integration'
 exclude='Realtime\.WithoutPermissionWarnsOncePerSettingAndPublishes'
-if [ "$kind" = tsan ]; then
-  labels='integration'
-  exclude="$exclude|CalibrationDds\.StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing"
-  exclude="$exclude|CalibrationDds\.AbortStopsItPromptlyAndWritesNothing"
-  exclude="$exclude|DdsInterface\.DiagnosticsRoundTripBetweenTwoProcesses"
-  exclude="$exclude|DdsInterface\.ThreeAxesAreThreeInstancesWithIndependentDeadlines"
-  exclude="$exclude|DdsRoundTrip\.TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown"
-  exclude="$exclude|DdsSecurity\.OnlyThePermittedMonitorReadsTheState"
-  exclude="$exclude|CalibrationKill\.KilledAtAnyMomentLeavesTheOldOrTheNewFileNeverABrokenOne"
-fi
-ctest --test-dir "$build" --output-on-failure --timeout 600 -L "$labels" -LE 'vm|interop' \
+# --parallel: the unit tests run side by side; the integration tests are RUN_SERIAL.
+ctest --test-dir "$build" --output-on-failure --timeout 600 --parallel "$(nproc)" -L "$labels" -LE 'vm|interop' \
   -E "^($exclude)\$" "$@" || status=1
 fastdds shm clean >/dev/null 2>&1 || true
 
