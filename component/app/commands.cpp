@@ -774,7 +774,14 @@ int monitor_command(const MonitorOptions& options) {
                   dds_options.domain, kStateTopic, deadline_ms);
     const auto start = std::chrono::steady_clock::now();
     auto last_print = start - std::chrono::hours(1);
+    int matched = 0;
     for (;;) {
+      // Matching is logged (stderr), so that a monitor that receives nothing says
+      // whether it found no encoder or found one that sends nothing.
+      if (const int m = reader.matched_writers(); m != matched) {
+        spdlog::info("monitor: {} state writer(s) matched on domain {}", m, dds_options.domain);
+        matched = m;
+      }
       const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       if (options.duration_s > 0 && elapsed >= options.duration_s) break;
       double wait = options.refresh_s;

@@ -1,5 +1,6 @@
 // virtual-encoder: one executable, one subcommand per job.
 #include <CLI/CLI.hpp>
+#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include "commands.hpp"
@@ -98,6 +99,9 @@ int main(int argc, char** argv) {
   // ---- end sensor-node ----
 
   CLI11_PARSE(app, argc, argv);
+  // The log goes to stderr: stdout carries what a command produces (the monitor's
+  // table or CSV stream, reports), which users pipe and redirect.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("virtual-encoder"));
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%H:%M:%S.%e %^%-5l%$ %v");
 

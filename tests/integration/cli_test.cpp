@@ -5,6 +5,7 @@
 
 #include <fcntl.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -145,6 +146,49 @@ TEST(Cli, CalibrateThenCheckThenRunPublishesCalibratedPositions) {
 }  // namespace
 
 namespace {
+
+// `monitor --csv > file` is how a commissioning engineer records a run for plotting:
+// stdout must be the CSV stream and nothing else, the log goes to stderr.
+TEST(Cli, MonitorCsvStdoutIsOnlyCsvTheLogGoesToStderr) {
+  TempDir dir;
+  const int domain = 86;
+  const std::string standstill = std::string(VE_SOURCE_DIR) + "/tests/integration/data/standstill.yaml";
+  ChildProcess run({VE_BINARY, "run", "--config", standstill, "--domain", std::to_string(domain), "--duration", "60"},
+                   (dir.path / "run.log").string());
+  ASSERT_TRUE(run.started());
+  const fs::path out = dir.path / "monitor.csv", err = dir.path / "monitor.err";
+  ChildProcess monitor({VE_BINARY, "monitor", "--csv", "--domain", std::to_string(domain), "--duration", "60"},
+                       out.string(), err.string());
+  ASSERT_TRUE(monitor.started());
+  auto rows = [&] {
+    std::size_t n = 0;
+    std::istringstream in(ve::test::read_file(out.string()));
+    for (std::string line; std::getline(in, line);) n += line.rfind("1,", 0) == 0;
+    return n;
+  };
+  ASSERT_TRUE(wait_until([&] { return rows() > 2000; }, 30s)) << ve::test::read_file(err.string()) << run.log();
+  monitor.signal(SIGINT);
+  EXPECT_EQ(monitor.wait_exit(20s), 0) << ve::test::read_file(err.string());
+  run.signal(SIGINT);
+  EXPECT_EQ(run.wait_exit(20s), 0) << run.log();
+
+  // stdout: the header, then rows of 14 fields, nothing else.
+  std::istringstream csv(ve::test::read_file(out.string()));
+  std::string line;
+  ASSERT_TRUE(std::getline(csv, line));
+  EXPECT_EQ(line.rfind("axis_id,sequence,", 0), 0u) << line;
+  std::size_t n = 0;
+  while (std::getline(csv, line)) {
+    ASSERT_EQ(std::count(line.begin(), line.end(), ','), 13) << "not a CSV row on stdout: " << line;
+    ASSERT_EQ(line.rfind("1,", 0), 0u) << line;
+    ++n;
+  }
+  EXPECT_GT(n, 2000u);
+  // stderr: the log, here the monitor saying it matched the encoder's writer.
+  const std::string log = ve::test::read_file(err.string());
+  EXPECT_NE(log.find("state writer(s) matched"), std::string::npos) << log;
+  EXPECT_EQ(log.find("axis_id,"), std::string::npos) << log;
+}
 
 TEST(Cli, CalibrateFromARecordedLogWithReference) {
   TempDir dir;

@@ -128,7 +128,9 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
   const auto last_ns = diags.back().publish_time_ns();
   const double rate = (diags.size() - 1) / ((last_ns - first_ns) * 1e-9);
   // The rates are figures of the real-time stream: judged at real speed only (speed.hpp).
-  if (kRealTimeFigures) EXPECT_NEAR(rate, 10.0, 2.0);
+  if (kRealTimeFigures) {
+    EXPECT_NEAR(rate, 10.0, 2.0);
+  }
   const auto& d = diags.back();
   EXPECT_EQ(d.axis_id(), 1u);
   EXPECT_TRUE(d.status() & ve::core::status::kValid) << ve::core::status_to_string(d.status());
@@ -148,7 +150,9 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
   std::uint64_t samples = 0;
   for (std::size_t i = 1; i < diags.size(); ++i) samples += diags[i].period_samples();
   const double mean_rate = samples / ((last_ns - first_ns) * 1e-9);
-  if (kRealTimeFigures) EXPECT_NEAR(mean_rate, 4000.0, 400.0);
+  if (kRealTimeFigures) {
+    EXPECT_NEAR(mean_rate, 4000.0, 400.0);
+  }
   EXPECT_GT(d.sample_rate_hz(), 0.0);
   EXPECT_NEAR(d.arrival_period_mean_us() * d.sample_rate_hz() * 1e-6, 1.0, 0.2);
   EXPECT_GT(d.arrival_jitter_us(), 0.0);

@@ -90,7 +90,9 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
     ASSERT_GT(samples[i].sample_time_ns(), samples[i - 1].sample_time_ns());
     gaps += samples[i].sequence_number() - samples[i - 1].sequence_number() - 1;
   }
-  if (kRealTimeFigures) EXPECT_LT(gaps, samples.size() / 100) << "more than 1 % of the samples lost on loopback";
+  if (kRealTimeFigures) {
+    EXPECT_LT(gaps, samples.size() / 100) << "more than 1 % of the samples lost on loopback";
+  }
 
   // Values: the simulated carriage stands at 0.3 m.
   double sum_sq = 0.0;

@@ -30,14 +30,20 @@ inline std::string read_file(const std::string& path) {
 
 class ChildProcess {
  public:
-  ChildProcess(const std::vector<std::string>& args, const std::string& log_path) : log_path_(log_path) {
+  /// stdout and stderr both go to `log_path`, or stderr to `stderr_path` if one is given.
+  ChildProcess(const std::vector<std::string>& args, const std::string& log_path, const std::string& stderr_path = "")
+      : log_path_(log_path) {
     std::vector<char*> argv;
     for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+    if (stderr_path.empty())
+      posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+    else
+      posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, stderr_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                       0644);
     if (posix_spawn(&pid_, argv[0], &actions, nullptr, argv.data(), environ) != 0) pid_ = -1;
     posix_spawn_file_actions_destroy(&actions);
   }
