@@ -774,19 +774,24 @@ int monitor_command(const MonitorOptions& options) {
                   dds_options.domain, kStateTopic, deadline_ms);
     const auto start = std::chrono::steady_clock::now();
     auto last_print = start - std::chrono::hours(1);
+    // Matching is logged (stderr), so that a monitor that receives nothing says
+    // whether it found no encoder or found one that sends nothing.
     int matched = 0;
-    for (;;) {
-      // Matching is logged (stderr), so that a monitor that receives nothing says
-      // whether it found no encoder or found one that sends nothing.
+    auto log_matching = [&] {
       if (const int m = reader.matched_writers(); m != matched) {
         spdlog::info("monitor: {} state writer(s) matched on domain {}", m, dds_options.domain);
         matched = m;
       }
+    };
+    for (;;) {
+      log_matching();
       const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       if (options.duration_s > 0 && elapsed >= options.duration_s) break;
       double wait = options.refresh_s;
       if (options.duration_s > 0) wait = std::min(wait, options.duration_s - elapsed);
-      if (wait_for_termination(std::max(wait, 0.001))) break;
+      const bool stop = wait_for_termination(std::max(wait, 0.001));
+      log_matching();
+      if (stop) break;
       if (options.csv) {
         std::lock_guard<std::mutex> lock(out_mutex);
         std::fflush(stdout);
