@@ -34,6 +34,39 @@ namespace ve::app {
 
 namespace {
 
+/// The number of writers matched with a reader whose listener is attached after the
+/// reader is created (so that no sample callback runs before the listener knows its
+/// readers): a match made in between gave no callback, so once the listener is
+/// attached the count is also read from the reader's status. A callback that comes
+/// while that status is being read wins, being at least as new. Our mutex is never
+/// held while Fast DDS is called.
+class MatchCount {
+ public:
+  void on_callback(int current) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    value_.store(current);
+    ++callbacks_;
+  }
+  /// After set_listener(): the reader's own status, unless a callback overtook it.
+  void sync(fdds::DataReader& reader) {
+    std::uint64_t before;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      before = callbacks_;
+    }
+    fdds::SubscriptionMatchedStatus st;
+    if (reader.get_subscription_matched_status(st) != ReturnCode_t::RETCODE_OK) return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (callbacks_ == before) value_.store(st.current_count);
+  }
+  int load() const { return value_.load(); }
+
+ private:
+  std::mutex mutex_;
+  std::uint64_t callbacks_ = 0;
+  std::atomic<int> value_{0};
+};
+
 eprosima::fastrtps::Duration_t duration_ms(double ms) {
   const auto total_ns = static_cast<std::int64_t>(std::llround(ms * 1e6));
   return eprosima::fastrtps::Duration_t(static_cast<std::int32_t>(total_ns / 1000000000),
@@ -586,8 +619,8 @@ class StateReader::Listener : public fdds::DataReaderListener {
   }
 
   void on_subscription_matched(fdds::DataReader* reader, const fdds::SubscriptionMatchedStatus& st) override {
-    if (reader == state_reader) matched.store(st.current_count);
-    if (reader == diagnostics_reader) diagnostics_matched.store(st.current_count);
+    if (reader == state_reader) matched.on_callback(st.current_count);
+    if (reader == diagnostics_reader) diagnostics_matched.on_callback(st.current_count);
   }
 
   Callback callback;
@@ -601,8 +634,8 @@ class StateReader::Listener : public fdds::DataReaderListener {
   std::atomic<std::uint64_t> missed_total{0};
   std::atomic<std::uint64_t> total{0};
   std::atomic<std::uint64_t> diagnostics_total{0};
-  std::atomic<int> matched{0};
-  std::atomic<int> diagnostics_matched{0};
+  MatchCount matched;
+  MatchCount diagnostics_matched;
 };
 
 StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample, DiagnosticsCallback on_diagnostics)
@@ -636,6 +669,9 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
     // description): deliver them now.
     listener_->on_data_available(r);
   }
+  // Matches made before the listener was attached (a writer already on the domain).
+  if (state_reader_ != nullptr) listener_->matched.sync(*state_reader_);
+  if (diagnostics_reader_ != nullptr) listener_->diagnostics_matched.sync(*diagnostics_reader_);
 }
 
 StateReader::~StateReader() {
@@ -785,13 +821,13 @@ class CalibrationStatusReader::Listener : public fdds::DataReaderListener {
     }
   }
   void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& s) override {
-    matched.store(s.current_count);
+    matched.on_callback(s.current_count);
   }
   Callback callback;
   std::mutex mutex;
   std::vector<ve::dds::CalibrationStatus> all;
   std::map<std::uint32_t, ve::dds::CalibrationStatus> last;
-  std::atomic<int> matched{0};
+  MatchCount matched;
 };
 
 CalibrationStatusReader::CalibrationStatusReader(DdsContext& ctx, Callback on_status)
@@ -807,6 +843,7 @@ CalibrationStatusReader::CalibrationStatusReader(DdsContext& ctx, Callback on_st
   if (reader_ == nullptr) return;
   reader_->set_listener(listener_.get(), fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
   listener_->on_data_available(reader_);
+  listener_->matched.sync(*reader_);
 }
 
 CalibrationStatusReader::~CalibrationStatusReader() {

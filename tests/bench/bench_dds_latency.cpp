@@ -24,12 +24,14 @@
 // Markdown to tests/bench/results/dds_latency.md.
 //
 //   bench_dds_latency [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S]
-//                     [--domain D] [--out FILE | --no-write]
+//                     [--rt-priority P] [--domain D] [--out FILE | --no-write]
 // The subscriber side is this program again:
 //   bench_dds_latency --sub product|product-nodl|bare --transport shm|udp|builtin --profiles FILE ...
 #include <dirent.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <pthread.h>
+#include <sched.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/prctl.h>
@@ -190,6 +192,36 @@ double process_cpu_s() {
   return u.ru_utime.tv_sec + u.ru_stime.tv_sec + (u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-6;
 }
 std::int64_t mono_ns() { return now_ns(CLOCK_MONOTONIC); }
+
+/// SCHED_FIFO at `priority` for the calling thread while it lives (0: nothing), as the
+/// service runs its sample threads (realtime.sample_thread_priority). Threads created
+/// meanwhile (Fast DDS's, for a participant created in the scope) inherit it.
+class RealtimeScope {
+ public:
+  explicit RealtimeScope(int priority) {
+    if (priority <= 0) return;
+    pthread_getschedparam(pthread_self(), &old_policy_, &old_param_);
+    sched_param p{};
+    p.sched_priority = priority;
+    const int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &p);
+    if (rc != 0) {
+      std::fprintf(stderr, "SCHED_FIFO %d refused (%s): running with normal scheduling\n", priority, std::strerror(rc));
+      return;
+    }
+    active_ = true;
+  }
+  ~RealtimeScope() {
+    if (active_) pthread_setschedparam(pthread_self(), old_policy_, &old_param_);
+  }
+  RealtimeScope(const RealtimeScope&) = delete;
+  RealtimeScope& operator=(const RealtimeScope&) = delete;
+  bool active() const { return active_; }
+
+ private:
+  bool active_ = false;
+  int old_policy_ = SCHED_OTHER;
+  sched_param old_param_{};
+};
 
 void sleep_until_mono(std::int64_t t) {
   timespec ts{static_cast<time_t>(t / 1000000000), static_cast<long>(t % 1000000000)};
@@ -363,7 +395,9 @@ void say(const std::string& line) {
 }
 
 /// Child: subscribe, report READY when matched, on "STOP" (or EOF) print the result.
-int subscriber_main(const std::string& kind, const std::string& transport, int domain, std::uint64_t warmup) {
+int subscriber_main(const std::string& kind, const std::string& transport, int domain, std::uint64_t warmup,
+                    int rt_priority) {
+  const RealtimeScope realtime(rt_priority);  // before the participant: its threads inherit it
   Recorder rec(warmup);
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateReader> reader;
@@ -624,15 +658,17 @@ void fill_sample(ve::dds::EncoderState& s, std::uint64_t seq, std::int64_t t) {
 /// One measurement: a subscriber child of `kind`, and this process publishing at
 /// rate_hz (<= 0: as fast as it can) for seconds through the same kind of writer.
 PubResult run_pair(const std::string& kind, const std::string& transport, int domain, double rate_hz, double seconds,
-                   std::uint64_t warmup) {
+                   std::uint64_t warmup, int rt_priority = 0) {
   PubResult res;
   Child child;
   if (!child.spawn({self_exe(), "--sub", kind, "--transport", transport, "--profiles", g_profiles_file, "--domain",
-                    std::to_string(domain), "--warmup", std::to_string(warmup)},
+                    std::to_string(domain), "--warmup", std::to_string(warmup), "--rt-priority",
+                    std::to_string(rt_priority)},
                    true)) {
     res.error = "cannot spawn the subscriber";
     return res;
   }
+  const RealtimeScope realtime(rt_priority);  // before the participant: its threads inherit it
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateWriter> writer;
   std::unique_ptr<Bare> bare;
@@ -756,10 +792,10 @@ PubResult run_pair(const std::string& kind, const std::string& transport, int do
 int g_match_retries = 0;
 
 PubResult run_pair_retry(const std::string& kind, const std::string& transport, int domain, double rate_hz,
-                         double seconds, std::uint64_t warmup) {
+                         double seconds, std::uint64_t warmup, int rt_priority = 0) {
   PubResult r;
   for (int attempt = 1; attempt <= 3; ++attempt) {
-    r = run_pair(kind, transport, domain, rate_hz, seconds, warmup);
+    r = run_pair(kind, transport, domain, rate_hz, seconds, warmup, rt_priority);
     if (r.ok || (r.error.rfind("subscriber not ready", 0) != 0 && r.error != "writer did not match")) return r;
     std::fprintf(stderr, "    attempt %d: %s; retrying\n", attempt, r.error.c_str());
     ++g_match_retries;
@@ -928,6 +964,7 @@ struct Options {
   double round_s = 2.5;   // seconds per latency round (4 kHz)
   double rate_s = 30.0;   // seconds of the paced 20 kHz run (the sustained rate)
   double max_s = 3.0;     // seconds of each as-fast-as-it-can run
+  int rt_priority = 0;    // > 0: one more paced run with SCHED_FIFO at this priority on both sides
   double cpu_s = 10.0;    // CPU window of `virtual-encoder run`
   int domain = 80;        // uses domain .. domain+12 (Linux: keep the ports below the ephemeral range)
   std::string out = std::string(VE_BENCH_SOURCE_DIR) + "/tests/bench/results/dds_latency.md";
@@ -1035,11 +1072,26 @@ int orchestrator_main(const Options& opt, const std::string& command) {
     std::fprintf(stderr, "    FAILED: %s\n", max_rate.error.c_str());
     return 1;
   }
-  std::fprintf(stderr, "  sustained rate: product writer paced at 20 kHz for %.1f s ...\n", opt.rate_s);
-  PubResult paced = run_pair_retry("product", "shm", opt.domain + 4, 20000.0, opt.rate_s, 0);
-  if (!paced.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", paced.error.c_str());
+  // Paced at 20 kHz with normal scheduling (the target is judged on this run), and with
+  // --rt-priority once more with SCHED_FIFO on both sides, as the service can run its
+  // sample threads (a drive controller's reader would run real-time too).
+  std::fprintf(stderr, "  sustained rate: product writer paced at 20 kHz for %.1f s, normal scheduling ...\n",
+               opt.rate_s);
+  PubResult paced_normal = run_pair_retry("product", "shm", opt.domain + 4, 20000.0, opt.rate_s, 0);
+  if (!paced_normal.ok) {
+    std::fprintf(stderr, "    FAILED: %s\n", paced_normal.error.c_str());
     return 1;
+  }
+  const PubResult& paced = paced_normal;
+  PubResult paced_rt;
+  if (opt.rt_priority > 0) {
+    std::fprintf(stderr, "  sustained rate: product writer paced at 20 kHz for %.1f s, SCHED_FIFO %d on both sides ...\n",
+                 opt.rate_s, opt.rt_priority);
+    paced_rt = run_pair_retry("product", "shm", opt.domain + 4, 20000.0, opt.rate_s, 0, opt.rt_priority);
+    if (!paced_rt.ok) {
+      std::fprintf(stderr, "    FAILED: %s\n", paced_rt.error.c_str());
+      return 1;
+    }
   }
   std::fprintf(stderr, "  sustained rate: bare writer as fast as it can for %.1f s (reference) ...\n", opt.max_s);
   PubResult bare_max = run_pair_retry("bare", "shm", opt.domain + 5, 0.0, opt.max_s, 0);
@@ -1160,11 +1212,17 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   md << "| run | published [Hz] | received [Hz] | published | received | lost | seq gaps | offered DL missed | "
         "requested DL missed | latency p50/p99/max [us] |\n|---|---|---|---|---|---|---|---|---|---|\n";
   md << rate_row("product, as fast as it can", max_rate) << "\n";
-  md << rate_row("product, paced 20 kHz", paced) << "\n";
+  md << rate_row("product, paced 20 kHz, normal scheduling", paced_normal) << "\n";
+  if (opt.rt_priority > 0)
+    md << rate_row(fmt("product, paced 20 kHz, SCHED_FIFO %d on both sides", opt.rt_priority).c_str(), paced_rt)
+       << "\n";
   md << rate_row("bare, as fast as it can (reference)", bare_max) << "\n\n";
-  md << fmt("The paced run lasts %.1f s, the as-fast-as-it-can runs %.1f s each. Lost = published - received (best\n"
+  md << fmt("The paced runs last %.1f s, the as-fast-as-it-can runs %.1f s each. Lost = published - received (best\n"
             "effort: nothing is retransmitted); seq gaps = holes in the received sequence numbers. Above 5 kHz the\n"
-            "publisher writes the samples due in each 1 ms tick back to back.\n\n",
+            "publisher writes the samples due in each 1 ms tick back to back. The target is judged on the run with\n"
+            "normal scheduling. `--rt-priority P` adds one with SCHED_FIFO P for the publishing thread and the\n"
+            "subscriber process (Fast DDS's threads included), as `realtime.sample_thread_priority` does for the\n"
+            "service's sample threads.\n\n",
             opt.rate_s, opt.max_s);
   md << "## 4. CPU of `virtual-encoder run` (built-in sim machine, one axis, 4 kHz)\n\n";
   md << "| run | window [s] | CPU [s] | CPU per axis [% of one core] | sample thread [%] | other threads [%] | "
@@ -1260,6 +1318,7 @@ int main(int argc, char** argv) {
     else if (a == "--transport") transport = next();
     else if (a == "--profiles") profiles = next();
     else if (a == "--warmup") warmup = std::strtoull(next().c_str(), nullptr, 10);
+    else if (a == "--rt-priority") opt.rt_priority = std::atoi(next().c_str());
     else if (a == "--domain") opt.domain = std::atoi(next().c_str());
     else if (a == "--rounds") opt.rounds = std::max(1, std::atoi(next().c_str()));
     else if (a == "--round-s") opt.round_s = std::atof(next().c_str());
@@ -1269,8 +1328,8 @@ int main(int argc, char** argv) {
     else if (a == "--out") opt.out = next();
     else if (a == "--no-write") opt.write = false;
     else if (a == "--help" || a == "-h") {
-      std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S] [--domain D(..D+12)] "
-                  "[--out FILE | --no-write]\n",
+      std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S] [--rt-priority P] "
+                  "[--domain D(..D+12)] [--out FILE | --no-write]\n",
                   argv[0]);
       return 0;
     } else {
@@ -1294,7 +1353,7 @@ int main(int argc, char** argv) {
       return 2;
     }
     g_profiles_file = profiles;
-    return subscriber_main(sub_kind, transport, opt.domain, warmup);
+    return subscriber_main(sub_kind, transport, opt.domain, warmup, opt.rt_priority);
   }
   if (!write_profiles_file()) {
     std::fprintf(stderr, "cannot write %s\n", g_profiles_file.c_str());
