@@ -24,13 +24,6 @@ using ve::test::ChildProcess;
 
 using ve::test::TempDir;
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 TEST(CalibrationKill, KilledAtAnyMomentLeavesTheOldOrTheNewFileNeverABrokenOne) {
   TempDir dir;
   const fs::path machine = dir.path / "machine.yaml";
@@ -60,7 +53,7 @@ TEST(CalibrationKill, KilledAtAnyMomentLeavesTheOldOrTheNewFileNeverABrokenOne) 
   const auto motor = ve::config::load_machine_file(machine.string());
   ASSERT_TRUE(motor.ok()) << ve::config::to_string(motor.errors);
   const auto& expected = motor.config.axes[0].motor;
-  const std::string old_text = slurp(cal);
+  const std::string old_text = ve::test::read_file(cal.string());
   const auto old_load = ve::config::load_calibration_file(cal.string(), expected);
   ASSERT_TRUE(old_load.ok());
 
@@ -79,7 +72,7 @@ TEST(CalibrationKill, KilledAtAnyMomentLeavesTheOldOrTheNewFileNeverABrokenOne) 
     p.wait_exit(30s);
 
     ASSERT_TRUE(fs::exists(cal)) << "kill " << i << " at " << at.count() << " ms removed the calibration";
-    const std::string text = slurp(cal);
+    const std::string text = ve::test::read_file(cal.string());
     const auto load = ve::config::load_calibration_file(cal.string(), expected);
     ASSERT_TRUE(load.ok()) << "kill " << i << " at " << at.count() << " ms left a broken file: "
                            << ve::config::to_string(load.errors);

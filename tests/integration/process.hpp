@@ -80,12 +80,7 @@ class ChildProcess {
     return -1;
   }
 
-  std::string log() const {
-    std::ifstream in(log_path_);
-    std::stringstream ss;
-    ss << in.rdbuf();
-    return ss.str();
-  }
+  std::string log() const { return read_file(log_path_); }
 
  private:
   pid_t pid_ = -1;
