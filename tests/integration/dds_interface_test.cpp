@@ -269,17 +269,22 @@ TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
 
   const auto x = probe.stats(1), y = probe.stats(2), z = probe.stats(3);
   std::printf("[ figures  ] requested %.0f ms: misses x=%llu y=%llu z=%llu; offered 5 ms (diagnostics): x=%llu "
-              "y=%llu (%llu episode(s)) z=%llu\n",
+              "(%llu episode(s)) y=%llu (%llu episode(s)) z=%llu (%llu episode(s))\n",
               requested_ms, static_cast<unsigned long long>(x.deadline_missed),
               static_cast<unsigned long long>(y.deadline_missed), static_cast<unsigned long long>(z.deadline_missed),
               static_cast<unsigned long long>(x.diagnostics.deadline_missed_total()),
+              static_cast<unsigned long long>(x.diagnostics.deadline_episodes_total()),
               static_cast<unsigned long long>(y.diagnostics.deadline_missed_total()),
               static_cast<unsigned long long>(y.diagnostics.deadline_episodes_total()),
-              static_cast<unsigned long long>(z.diagnostics.deadline_missed_total()));
+              static_cast<unsigned long long>(z.diagnostics.deadline_missed_total()),
+              static_cast<unsigned long long>(z.diagnostics.deadline_episodes_total()));
   // A 1 s stall at a 50 ms requested deadline: about 20 misses for y. x and z have
   // none on a quiet machine; a shared, loaded one can delay any process by 50 ms
   // now and then, so they are compared with y in the same run, not with zero.
-  EXPECT_GE(y.deadline_missed, 10u);
+  // How many a 1 s silence makes is a real-time figure of the test process's own timers:
+  // under ThreadSanitizer its 50 ms timer fires late (9 of the ~20 seen once); y is then
+  // judged against x and z only.
+  if (kRealTimeFigures) EXPECT_GE(y.deadline_missed, 10u);
   EXPECT_LT(x.deadline_missed * 5, y.deadline_missed);
   EXPECT_LT(z.deadline_missed * 5, y.deadline_missed);
   // The publisher's own (offered, 5 ms) view, through the diagnostics: y's 1 s stall
@@ -290,7 +295,14 @@ TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
   const auto y_offered = y.diagnostics.deadline_missed_total();
   EXPECT_GE(y_offered, 100u);
   EXPECT_GE(y.diagnostics.deadline_episodes_total(), 1u);
-  EXPECT_LE(y.diagnostics.deadline_episodes_total(), 3u) << "a stall is one episode, not one per miss";
+  // The stall is one episode, not one per miss. Any axis can also have short episodes of
+  // its own when the host delays its thread past 5 ms (x and z show how many this run
+  // had: none on a quiet machine, a few under ThreadSanitizer); y may have as many more.
+  const auto hiccup_episodes =
+      std::max(x.diagnostics.deadline_episodes_total(), z.diagnostics.deadline_episodes_total());
+  EXPECT_LE(y.diagnostics.deadline_episodes_total(), 3u + hiccup_episodes)
+      << "a stall is one episode, not one per miss (x and z had " << x.diagnostics.deadline_episodes_total()
+      << " and " << z.diagnostics.deadline_episodes_total() << ")";
   EXPECT_LT(x.diagnostics.deadline_missed_total() * 3, y_offered);
   EXPECT_LT(z.diagnostics.deadline_missed_total() * 3, y_offered);
   // Logged once per episode, per axis.
