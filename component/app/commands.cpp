@@ -563,9 +563,9 @@ int run_command(const RunOptions& options) {
       keep_position(loop->setup);
       const auto& c = state_writer.counters(loop->slot);
       spdlog::info("axis '{}': {} samples estimated, {} published, {} diagnostics, offered deadline missed {} times "
-                   "in {} episode(s)",
+                   "in {} episode(s) ({} early report(s) of Fast DDS not counted)",
                    loop->setup.config.name, loop->samples.load(), loop->published.load(),
-                   loop->diagnostics_published.load(), c.missed.load(), c.episodes.load());
+                   loop->diagnostics_published.load(), c.missed.load(), c.episodes.load(), c.early_reports.load());
       const std::string driver_stats = loop->setup.source->stats();
       if (!driver_stats.empty()) spdlog::info("axis '{}': driver: {}", loop->setup.config.name, driver_stats);
     }
@@ -835,9 +835,11 @@ int monitor_command(const MonitorOptions& options) {
       std::fflush(stdout);
     }
     if (!options.csv)
-      std::printf("received %llu samples; requested deadline missed %llu times\n",
+      std::printf("received %llu samples; requested deadline missed %llu times (%llu early report(s) of Fast DDS "
+                  "not counted)\n",
                   static_cast<unsigned long long>(reader.total_received()),
-                  static_cast<unsigned long long>(reader.deadline_missed_total()));
+                  static_cast<unsigned long long>(reader.deadline_missed_total()),
+                  static_cast<unsigned long long>(reader.deadline_early_reports()));
   }
   ctx.reset();
   return exit_code;

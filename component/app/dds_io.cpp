@@ -1,5 +1,7 @@
 #include "dds_io.hpp"
 
+#include "deadline_periods.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -369,6 +371,9 @@ struct StateWriter::Slot {
   std::string name;
   eprosima::fastrtps::rtps::InstanceHandle_t handle;
   DeadlineCounters counters;
+  std::atomic<std::int64_t> last_write_ns{0};  ///< steady clock, set by the axis thread
+  std::mutex periods_mutex;  ///< periods: at a report (listener thread) vs after a long gap (axis thread)
+  DeadlinePeriods periods;
   std::mutex episode_mutex;           ///< start (listener thread) vs end (axis thread)
   std::uint64_t missed_at_start = 0;
   std::int64_t episode_start_ns = 0;
@@ -379,22 +384,19 @@ class StateWriter::Listener : public fdds::DataWriterListener {
  public:
   explicit Listener(StateWriter& w) : writer(w) {}
   void on_offered_deadline_missed(fdds::DataWriter* w, const fdds::OfferedDeadlineMissedStatus& s) override {
-    // One call per missed period of one instance; slots are fixed before publishing starts.
+    // One call per report of one instance; slots are fixed before publishing starts.
     for (auto& slot : writer.slots_) {
       if (slot->writer != w || slot->handle != s.last_instance_handle) continue;
       const auto now = steady_ns();
-      const auto missed = slot->counters.missed.fetch_add(1) + 1;
-      slot->counters.last_miss_ns.store(now);
-      std::lock_guard<std::mutex> lock(slot->episode_mutex);
-      if (!slot->counters.in_episode.load()) {
-        slot->counters.in_episode.store(true);
-        slot->counters.episodes.fetch_add(1);
-        slot->missed_at_start = missed - 1;
-        slot->episode_start_ns = now;
-        spdlog::warn("axis '{}' (id {}): offered deadline of {} ms missed: no sample published in time "
-                     "(episode {}; logged once until it is over)",
-                     slot->name, slot->axis_id, writer.deadline_ms_, slot->counters.episodes.load());
+      std::uint64_t added = 0;
+      {
+        std::lock_guard<std::mutex> lock(slot->periods_mutex);
+        added = slot->periods.on_report(slot->last_write_ns.load(), now, writer.deadline_ns_);
       }
+      if (added == 0)
+        slot->counters.early_reports.fetch_add(1);
+      else
+        writer.count_missed(*slot, added, now);
       return;
     }
   }
@@ -417,6 +419,7 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
   }
   if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
   deadline_ms_ = to_ms(q.deadline().period);
+  deadline_ns_ = static_cast<std::int64_t>(std::llround(deadline_ms_ * 1e6));
   qos_ = std::make_unique<fdds::DataWriterQos>(q);
   // The shared writer: matching status, and samples of axes without their own writer.
   writer_ = pub->create_datawriter(ctx_.state_topic(), q, listener_.get(), fdds::StatusMask::publication_matched());
@@ -477,19 +480,63 @@ void StateWriter::retire_axis(int index) {
   slot.writer->unregister_instance(&key, slot.handle);
 }
 
+void StateWriter::count_missed(Slot& slot, std::uint64_t periods, std::int64_t now_ns) {
+  const auto missed = slot.counters.missed.fetch_add(periods) + periods;
+  slot.counters.last_miss_ns.store(now_ns);
+  std::lock_guard<std::mutex> lock(slot.episode_mutex);
+  if (slot.counters.in_episode.load()) return;
+  slot.counters.in_episode.store(true);
+  slot.counters.episodes.fetch_add(1);
+  slot.missed_at_start = missed - periods;
+  slot.episode_start_ns = now_ns;
+  spdlog::warn("axis '{}' (id {}): offered deadline of {} ms missed: no sample published in time "
+               "(episode {}; logged once until it is over)",
+               slot.name, slot.axis_id, deadline_ms_, slot.counters.episodes.load());
+}
+
+void StateWriter::note_write(Slot& slot) {
+  const std::int64_t now = steady_ns();
+  const std::int64_t last = slot.last_write_ns.load(std::memory_order_relaxed);
+  if (deadline_ns_ <= 0 || last == 0 || now - last < deadline_ns_) {
+    slot.last_write_ns.store(now, std::memory_order_relaxed);
+    return;
+  }
+  // A gap of a whole period or more ends here. Fast DDS reports it only at the
+  // truncated times its timer fires (app/deadline_periods.hpp), possibly not at all
+  // for a gap shorter than two of them: the periods it did not report are counted now.
+  std::uint64_t added = 0;
+  {
+    std::lock_guard<std::mutex> lock(slot.periods_mutex);
+    added = slot.periods.on_report(last, now, deadline_ns_);
+    slot.last_write_ns.store(now);
+  }
+  if (added > 0) count_missed(slot, added, now);
+}
+
 bool StateWriter::write(int slot, const ve::dds::EncoderState& sample) {
-  return slots_[static_cast<std::size_t>(slot)]->writer->write(const_cast<ve::dds::EncoderState*>(&sample));
+  Slot& s = *slots_[static_cast<std::size_t>(slot)];
+  note_write(s);
+  return s.writer->write(const_cast<ve::dds::EncoderState*>(&sample));
 }
 
 bool StateWriter::write(const ve::dds::EncoderState& sample) {
-  for (auto& slot : slots_)
-    if (slot->axis_id == sample.axis_id()) return slot->writer->write(const_cast<ve::dds::EncoderState*>(&sample));
+  for (auto& slot : slots_) {
+    if (slot->axis_id != sample.axis_id()) continue;
+    note_write(*slot);
+    return slot->writer->write(const_cast<ve::dds::EncoderState*>(&sample));
+  }
   return writer_->write(const_cast<ve::dds::EncoderState*>(&sample));
 }
 
 std::uint64_t StateWriter::deadline_missed_total() const {
   std::uint64_t n = 0;
   for (const auto& slot : slots_) n += slot->counters.missed.load();
+  return n;
+}
+
+std::uint64_t StateWriter::deadline_early_reports() const {
+  std::uint64_t n = 0;
+  for (const auto& slot : slots_) n += slot->counters.early_reports.load();
   return n;
 }
 
@@ -601,7 +648,18 @@ class StateReader::Listener : public fdds::DataReaderListener {
           a.sequence_gaps += s.sequence_number() - a.last.sequence_number() - 1;
         a.last = s;
         ++a.received;
-        handles[info.instance_handle] = s.axis_id();
+        auto& instance = handles[info.instance_handle];
+        instance.axis_id = s.axis_id();
+        const std::int64_t now_ns =
+            std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
+        if (deadline_ns > 0 && instance.last_sample_ns != 0 && now_ns - instance.last_sample_ns >= deadline_ns) {
+          // A gap of a whole period or more ends: the periods Fast DDS did not report
+          // (its timer fires at truncated times: app/deadline_periods.hpp) count now.
+          const std::uint64_t added = instance.periods.on_report(instance.last_sample_ns, now_ns, deadline_ns);
+          missed_total.fetch_add(added);
+          a.deadline_missed += added;
+        }
+        instance.last_sample_ns = now_ns;
         auto& times = arrivals[s.axis_id()];
         times.push_back(now);
         while (!times.empty() && now - times.front() > std::chrono::seconds(1)) times.pop_front();
@@ -612,10 +670,20 @@ class StateReader::Listener : public fdds::DataReaderListener {
   }
 
   void on_requested_deadline_missed(fdds::DataReader*, const fdds::RequestedDeadlineMissedStatus& st) override {
-    missed_total.store(static_cast<std::uint64_t>(st.total_count));
+    // Whole periods without a sample, not Fast DDS's reports (app/deadline_periods.hpp).
     std::lock_guard<std::mutex> lock(mutex);
     const auto it = handles.find(st.last_instance_handle);
-    if (it != handles.end()) ++axes[it->second].deadline_missed;
+    if (it == handles.end()) {  // no sample of it taken yet: trust the report
+      missed_total.fetch_add(1);
+      return;
+    }
+    const std::uint64_t added = it->second.periods.on_report(it->second.last_sample_ns, steady_ns(), deadline_ns);
+    if (added == 0) {
+      early_reports.fetch_add(1);
+      return;
+    }
+    missed_total.fetch_add(added);
+    axes[it->second.axis_id].deadline_missed += added;
   }
 
   void on_subscription_matched(fdds::DataReader* reader, const fdds::SubscriptionMatchedStatus& st) override {
@@ -630,7 +698,14 @@ class StateReader::Listener : public fdds::DataReaderListener {
   std::mutex mutex;
   std::map<std::uint32_t, AxisStats> axes;
   std::map<std::uint32_t, std::deque<std::chrono::steady_clock::time_point>> arrivals;
-  std::map<eprosima::fastrtps::rtps::InstanceHandle_t, std::uint32_t> handles;
+  struct Instance {
+    std::uint32_t axis_id = 0;
+    std::int64_t last_sample_ns = 0;  ///< steady clock, when it was taken
+    DeadlinePeriods periods;
+  };
+  std::map<eprosima::fastrtps::rtps::InstanceHandle_t, Instance> handles;
+  std::int64_t deadline_ns = 0;  ///< requested; set before the readers exist
+  std::atomic<std::uint64_t> early_reports{0};
   std::atomic<std::uint64_t> missed_total{0};
   std::atomic<std::uint64_t> total{0};
   std::atomic<std::uint64_t> diagnostics_total{0};
@@ -649,6 +724,7 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
   sub->get_default_datareader_qos(sq);
   if (!ctx_.reader_qos_from_profile(profile::kStateReader, sq)) state_reader_defaults(sq);
   sq.deadline().period = deadline_ms > 0 ? duration_ms(deadline_ms) : eprosima::fastrtps::c_TimeInfinite;
+  listener_->deadline_ns = deadline_ms > 0 ? static_cast<std::int64_t>(std::llround(deadline_ms * 1e6)) : 0;
   fdds::DataReaderQos dq;
   sub->get_default_datareader_qos(dq);
   if (!ctx_.reader_qos_from_profile(profile::kDescriptionReader, dq)) description_defaults(dq);
@@ -697,6 +773,7 @@ std::vector<AxisStats> StateReader::snapshot() {
 }
 
 std::uint64_t StateReader::deadline_missed_total() const { return listener_->missed_total.load(); }
+std::uint64_t StateReader::deadline_early_reports() const { return listener_->early_reports.load(); }
 int StateReader::matched_writers() const { return listener_->matched.load(); }
 int StateReader::matched_diagnostics_writers() const { return listener_->diagnostics_matched.load(); }
 std::uint64_t StateReader::total_received() const { return listener_->total.load(); }

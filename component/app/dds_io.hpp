@@ -140,7 +140,10 @@ class DdsContext {
 
 /// Offered-deadline bookkeeping of one axis instance (see StateWriter::add_axis).
 struct DeadlineCounters {
-  std::atomic<std::uint64_t> missed{0};     ///< offered deadline misses of this instance
+  std::atomic<std::uint64_t> missed{0};     ///< offered deadline periods missed by this instance
+  /// Fast DDS reports that came before a whole period without a sample had passed
+  /// (its timers run in whole milliseconds; app/deadline_periods.hpp): not misses.
+  std::atomic<std::uint64_t> early_reports{0};
   std::atomic<std::uint64_t> episodes{0};   ///< runs of misses without a quiet time in between
   std::atomic<bool> in_episode{false};
   std::atomic<std::int64_t> last_miss_ns{0};  ///< steady clock
@@ -174,8 +177,10 @@ class StateWriter {
   /// Thread-safe: Fast DDS serialises writes per writer. Finds the axis' writer
   /// (the shared one for an axis that was not added).
   bool write(const ve::dds::EncoderState& sample);
-  /// Offered deadline misses of the added axes.
+  /// Offered deadline periods missed by the added axes: whole periods without a write,
+  /// counted when Fast DDS reports a miss (its early reports are counted apart).
   std::uint64_t deadline_missed_total() const;
+  std::uint64_t deadline_early_reports() const;
   /// Offered deadline misses of one axis instance.
   std::uint64_t deadline_missed(std::uint32_t axis_id) const;
   int matched_readers() const;
@@ -184,6 +189,8 @@ class StateWriter {
   class Listener;
   friend class Listener;
   struct Slot;
+  void note_write(Slot& slot);
+  void count_missed(Slot& slot, std::uint64_t periods, std::int64_t now_ns);
   DdsContext& ctx_;
   std::unique_ptr<Listener> listener_;
   std::vector<std::unique_ptr<Slot>> slots_;
@@ -191,6 +198,7 @@ class StateWriter {
   eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
   bool from_profile_ = false;
   double deadline_ms_ = 0.0;
+  std::int64_t deadline_ns_ = 0;
 };
 
 /// Writer of ve/diagnostics (about 10 Hz per axis, reliable keep-last).
@@ -253,7 +261,10 @@ class StateReader {
   }
 
   std::vector<AxisStats> snapshot();
+  /// Requested deadline periods missed, all axes (Fast DDS's early reports not counted).
   std::uint64_t deadline_missed_total() const;
+  /// Fast DDS's requested-deadline reports before a whole period without a sample had passed.
+  std::uint64_t deadline_early_reports() const;
   int matched_writers() const;
   int matched_diagnostics_writers() const;
   std::uint64_t total_received() const;
