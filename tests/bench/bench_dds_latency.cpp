@@ -25,7 +25,7 @@
 // Markdown to tests/bench/results/dds_latency.md.
 //
 //   bench_dds_latency [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S]
-//                     [--rt-priority P] [--domain D] [--out FILE | --no-write]
+//                     [--rt-priority P] [--pin] [--domain D] [--out FILE | --no-write]
 // The subscriber side is this program again:
 //   bench_dds_latency --sub product|product-to-bare|product-nodl|bare --transport shm|udp|builtin --profiles FILE ...
 #include <dirent.h>
@@ -197,6 +197,35 @@ std::int64_t mono_ns() { return now_ns(CLOCK_MONOTONIC); }
 /// SCHED_FIFO at `priority` for the calling thread while it lives (0: nothing), as the
 /// service runs its sample threads (realtime.sample_thread_priority). Threads created
 /// meanwhile (Fast DDS's, for a participant created in the scope) inherit it.
+/// Pins the calling thread (and the threads it creates meanwhile: Fast DDS's, when the
+/// participant is made inside the scope) to one CPU; cpu < 0: no change.
+class PinScope {
+ public:
+  explicit PinScope(int cpu) {
+    if (cpu < 0) return;
+    if (pthread_getaffinity_np(pthread_self(), sizeof old_, &old_) != 0) return;
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    CPU_SET(cpu, &set);
+    active_ = pthread_setaffinity_np(pthread_self(), sizeof set, &set) == 0;
+    if (!active_) std::fprintf(stderr, "cannot pin to CPU %d: running unpinned\n", cpu);
+  }
+  ~PinScope() {
+    if (active_) pthread_setaffinity_np(pthread_self(), sizeof old_, &old_);
+  }
+  PinScope(const PinScope&) = delete;
+  PinScope& operator=(const PinScope&) = delete;
+
+ private:
+  bool active_ = false;
+  cpu_set_t old_{};
+};
+
+/// --pin: publisher process on CPU 0, subscriber process on CPU 1 (as a deployment
+/// keeps the encoder and its consumers on CPUs of their own).
+bool g_pin = false;
+int g_child_cpu = -1;
+
 class RealtimeScope {
  public:
   explicit RealtimeScope(int priority) {
@@ -406,7 +435,8 @@ void say(const std::string& line) {
 /// Child: subscribe, report READY when matched, on "STOP" (or EOF) print the result.
 int subscriber_main(const std::string& kind, const std::string& transport, int domain, std::uint64_t warmup,
                     int rt_priority) {
-  const RealtimeScope realtime(rt_priority);  // before the participant: its threads inherit it
+  const PinScope pin(g_child_cpu);            // before the participant: its threads inherit it
+  const RealtimeScope realtime(rt_priority);  // likewise
   Recorder rec(warmup);
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateReader> reader;
@@ -644,6 +674,7 @@ struct PubResult {
   /// milliseconds left, so a 5 ms offered deadline fires after a silence of about 4 ms)
   /// or than the offered 5 ms.
   std::int64_t max_write_gap_ns = 0;
+  std::int64_t max_write_call_ns = 0;  ///< the longest write() call itself
   std::uint64_t write_gaps_over_4ms = 0, write_gaps_over_5ms = 0;
   std::uint64_t offered_deadline_missed = 0;
   std::uint64_t offered_early_reports = 0;  ///< Fast DDS reports before a whole period had passed
@@ -679,12 +710,13 @@ PubResult run_pair(const std::string& kind, const std::string& transport, int do
   Child child;
   if (!child.spawn({self_exe(), "--sub", kind, "--transport", transport, "--profiles", g_profiles_file, "--domain",
                     std::to_string(domain), "--warmup", std::to_string(warmup), "--rt-priority",
-                    std::to_string(rt_priority)},
+                    std::to_string(rt_priority), "--pin-cpu", g_pin ? "1" : "-1"},
                    true)) {
     res.error = "cannot spawn the subscriber";
     return res;
   }
-  const RealtimeScope realtime(rt_priority);  // before the participant: its threads inherit it
+  const PinScope pin(g_pin ? 0 : -1);         // before the participant: its threads inherit it
+  const RealtimeScope realtime(rt_priority);  // likewise
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateWriter> writer;
   std::unique_ptr<Bare> bare;
@@ -781,6 +813,7 @@ PubResult run_pair(const std::string& kind, const std::string& transport, int do
     fill_sample(s, ++seq, write_at);
     s.publish_time_ns(rt_ns());
     const bool ok = writer ? writer->write(slot, s) : bare->write(s);
+    res.max_write_call_ns = std::max(res.max_write_call_ns, mono_ns() - write_at);
     if (!ok) ++res.write_failures;
   }
   res.seconds = (mono_ns() - start) * 1e-9;
@@ -977,12 +1010,16 @@ FloorResult measure_pacing_floor(double seconds, double rate_hz) {
 
 std::string fmt(const char* f, ...) __attribute__((format(printf, 1, 2)));
 std::string fmt(const char* f, ...) {
-  char b[1024];
   va_list ap;
   va_start(ap, f);
-  std::vsnprintf(b, sizeof b, f, ap);
+  va_list ap2;
+  va_copy(ap2, ap);
+  const int n = std::vsnprintf(nullptr, 0, f, ap);
   va_end(ap);
-  return b;
+  std::string out(n > 0 ? static_cast<std::size_t>(n) : 0, '\0');
+  if (n > 0) std::vsnprintf(out.data(), out.size() + 1, f, ap2);
+  va_end(ap2);
+  return out;
 }
 
 std::string verdict(bool met) { return met ? "met" : "MISSED"; }
@@ -1126,6 +1163,12 @@ int orchestrator_main(const Options& opt, const std::string& command) {
       return 1;
     }
   }
+  std::fprintf(stderr, "  sustained rate: bare writer paced at 20 kHz for %.1f s (reference) ...\n", opt.rate_s);
+  PubResult bare_paced = run_pair_retry("bare", "shm", opt.domain + 5, 20000.0, opt.rate_s, 0);
+  if (!bare_paced.ok) {
+    std::fprintf(stderr, "    FAILED: %s\n", bare_paced.error.c_str());
+    return 1;
+  }
   std::fprintf(stderr, "  sustained rate: bare writer as fast as it can for %.1f s (reference) ...\n", opt.max_s);
   PubResult bare_max = run_pair_retry("bare", "shm", opt.domain + 5, 0.0, opt.max_s, 0);
   if (!bare_max.ok) {
@@ -1175,12 +1218,13 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   auto rate_row = [&](const char* name, const PubResult& r) {
     const double pub_rate = r.seconds > 0 ? r.published / r.seconds : 0;
     return fmt("| %s | %.0f | %.0f | %" PRIu64 " | %" PRIu64 " | %" PRIu64 " (%.2f %%) | %" PRIu64 " | %" PRIu64
-               " (+%" PRIu64 " early) | %" PRIu64 " | %.1f / %.1f / %.1f | %.2f | %" PRIu64 " / %" PRIu64 " |",
+               " (+%" PRIu64 " early) | %" PRIu64 " | %.1f / %.1f / %.1f | %.2f | %" PRIu64 " / %" PRIu64
+               " | %.2f | %" PRIu64 " |",
                name, pub_rate, r.sub.rate_hz, r.published, r.sub.received, lost(r),
                r.published ? 100.0 * lost(r) / r.published : 0.0, r.sub.gaps, r.offered_deadline_missed,
                r.offered_early_reports,
                r.sub.deadline_missed, r.sub.lat.p50_us, r.sub.lat.p99_us, r.sub.lat.max_us, r.max_write_gap_ns * 1e-6,
-               r.write_gaps_over_4ms, r.write_gaps_over_5ms);
+               r.write_gaps_over_4ms, r.write_gaps_over_5ms, r.max_write_call_ns * 1e-6, r.late_wakeups);
   };
   auto lat_row = [&](const char* name, const Pooled& p) {
     return fmt("| %s | %" PRIu64 " | %" PRIu64 " | %.1f | %.1f | %.1f | %.1f |\n", name, p.s.n, p.lost, p.s.p50_us,
@@ -1255,13 +1299,14 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   md << "\n## 3. Sustained rate, one axis (shared memory)\n\n";
   md << "| run | published [Hz] | received [Hz] | published | received | lost | seq gaps | offered DL missed | "
         "requested DL missed | latency p50/p99/max [us] | longest write gap [ms] | write gaps > 4 / > 5 ms "
-        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "| longest write() [ms] | wake-ups > 2 ms late |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   md << rate_row("product, as fast as it can", max_rate) << "\n";
   md << rate_row("product, paced 20 kHz, normal scheduling", paced_normal) << "\n";
   if (opt.rt_priority > 0)
     md << rate_row(fmt("product, paced 20 kHz, SCHED_FIFO %d on both sides", opt.rt_priority).c_str(), paced_rt)
        << "\n";
-  md << rate_row("bare, as fast as it can (reference)", bare_max) << "\n\n";
+  md << rate_row("bare, as fast as it can (reference)", bare_max) << "\n";
+  md << rate_row("bare, paced 20 kHz (reference: the host's stalls)", bare_paced) << "\n\n";
   md << fmt("The paced runs last %.1f s, the as-fast-as-it-can runs %.1f s each. Lost = published - received (best\n"
             "effort: nothing is retransmitted); seq gaps = holes in the received sequence numbers. Above 5 kHz the\n"
             "publisher writes the samples due in each 1 ms tick back to back. The target is judged on the run with\n"
@@ -1273,7 +1318,10 @@ int orchestrator_main(const Options& opt, const std::string& command) {
             "offered deadline is reported after a silence of a little over 4 ms. The product counts whole 5 ms\n"
             "periods without a write when Fast DDS reports (component/app/deadline_periods.hpp); the reports that\n"
             "came before one had passed are the \"early\" ones. A gap > 5 ms is a miss by any count: a thread that\n"
-            "is not run for that long on this virtual machine misses the deadline whatever it writes with.\n\n",
+            "is not run for that long on this virtual machine misses the deadline whatever it writes with. The\n"
+            "longest write() is the longest time one call took (the writer's own share of a gap); a wake-up more than\n"
+            "2 ms late is the host's. The bare paced run writes the same way with no deadline: its gaps are the\n"
+            "host's alone.\n\n",
             opt.rate_s, opt.max_s);
   md << "## 4. CPU of `virtual-encoder run` (built-in sim machine, one axis, 4 kHz)\n\n";
   md << "| run | window [s] | CPU [s] | CPU per axis [% of one core] | sample thread [%] | other threads [%] | "
@@ -1378,6 +1426,8 @@ int main(int argc, char** argv) {
     else if (a == "--profiles") profiles = next();
     else if (a == "--warmup") warmup = std::strtoull(next().c_str(), nullptr, 10);
     else if (a == "--rt-priority") opt.rt_priority = std::atoi(next().c_str());
+    else if (a == "--pin") g_pin = true;
+    else if (a == "--pin-cpu") g_child_cpu = std::atoi(next().c_str());
     else if (a == "--domain") opt.domain = std::atoi(next().c_str());
     else if (a == "--rounds") opt.rounds = std::max(1, std::atoi(next().c_str()));
     else if (a == "--round-s") opt.round_s = std::atof(next().c_str());
@@ -1388,14 +1438,14 @@ int main(int argc, char** argv) {
     else if (a == "--no-write") opt.write = false;
     else if (a == "--help" || a == "-h") {
       std::printf("usage: %s [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S] [--rt-priority P] "
-                  "[--domain D(..D+14)] [--out FILE | --no-write]\n",
+                  "[--pin] [--domain D(..D+14)] [--out FILE | --no-write]\n",
                   argv[0]);
       return 0;
     } else {
       std::fprintf(stderr, "unknown argument %s (--help)\n", a.c_str());
       return 2;
     }
-    if (sub_kind.empty() && a != "--sub") command += " " + a + (a == "--no-write" ? "" : " " + std::string(argv[i]));
+    if (sub_kind.empty() && a != "--sub") command += " " + a + (a == "--no-write" || a == "--pin" ? "" : " " + std::string(argv[i]));
   }
   if (opt.domain < 0 || opt.domain + (sub_kind.empty() ? 14 : 0) > 101) {
     std::fprintf(stderr, "--domain: 0 .. 87 (Linux: keep the ports below the ephemeral range)\n");
