@@ -141,8 +141,8 @@ class DdsContext {
 /// Offered-deadline bookkeeping of one axis instance (see StateWriter::add_axis).
 struct DeadlineCounters {
   std::atomic<std::uint64_t> missed{0};     ///< offered deadline periods missed by this instance
-  /// Fast DDS reports that came before a whole period without a sample had passed
-  /// (its timers run in whole milliseconds; app/deadline_periods.hpp): not misses.
+  /// Fast DDS reports that added no whole period without a sample (its timers run in
+  /// whole milliseconds; app/deadline_periods.hpp): not misses.
   std::atomic<std::uint64_t> early_reports{0};
   std::atomic<std::uint64_t> episodes{0};   ///< runs of misses without a quiet time in between
   std::atomic<bool> in_episode{false};

@@ -7,8 +7,9 @@
 // 4.1 ms and more always), and during a long silence every ~4 ms instead of every 5.
 // Fast DDS's own status counts those reports. The product counts what a deadline
 // means: whole periods that passed without a sample on the instance, looked at when
-// Fast DDS reports. Reports that come before a whole period has passed are counted
-// apart (early reports), so nothing is hidden.
+// Fast DDS reports. Reports that add no whole period (the first one after ~4 ms, and
+// during a long silence the one in five that falls in a period already counted) are
+// counted apart as early reports, so nothing is hidden.
 #pragma once
 
 #include <cstdint>

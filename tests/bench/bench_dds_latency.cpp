@@ -1317,7 +1317,7 @@ int orchestrator_main(const Options& opt, const std::string& command) {
             "2.9 arms the writer's deadline timer for the whole milliseconds left after each write, so the 5 ms\n"
             "offered deadline is reported after a silence of a little over 4 ms. The product counts whole 5 ms\n"
             "periods without a write when Fast DDS reports (component/app/deadline_periods.hpp); the reports that\n"
-            "came before one had passed are the \"early\" ones. A gap > 5 ms is a miss by any count: a thread that\n"
+            "added no whole period are the \"early\" ones. A gap > 5 ms is a miss by any count: a thread that\n"
             "is not run for that long on this virtual machine misses the deadline whatever it writes with. The\n"
             "longest write() is the longest time one call took (the writer's own share of a gap); a wake-up more than\n"
             "2 ms late is the host's. The bare paced run writes the same way with no deadline: its gaps are the\n"
