@@ -18,22 +18,15 @@
 #include <vector>
 
 #include "config/machine_config.hpp"
+#include "core/input_error.hpp"
 
 namespace ve::config {
 
-struct ConfigError {
-  std::string file;
-  int line = 0;    ///< 1-based; 0 = not tied to a position (e.g. unreadable file)
-  int column = 0;  ///< 1-based
-  std::string field;  ///< dotted path in the file, e.g. "axes[0].output.direction"; may be empty
-  std::string message;
-
-  /// "FILE:LINE:COL: FIELD: MESSAGE"; position and field are left out when unknown.
-  std::string to_string() const;
-};
-
-/// All errors, one per line, in the to_string() form.
-std::string to_string(const std::vector<ConfigError>& errors);
+/// A problem in a machine or motor file; `field` is the dotted path in the file, e.g.
+/// "axes[0].output.direction".
+using ConfigError = core::InputError;
+/// All errors, one per line.
+using core::to_string;
 
 struct LoadResult {
   MachineConfig config;              ///< filled as far as the files allowed; use only when ok()

@@ -150,21 +150,6 @@ int clamp_line(std::int64_t line) {
 
 // ---------------------------------------------------------------------------
 
-std::string LogError::to_string() const {
-  std::string s = file;
-  if (line > 0) s += ":" + std::to_string(line) + ":" + std::to_string(column);
-  s += ": ";
-  if (!field.empty()) s += field + ": ";
-  s += message;
-  return s;
-}
-
-std::string to_string(const std::vector<LogError>& errors) {
-  std::string s;
-  for (const auto& e : errors) s += e.to_string() + "\n";
-  return s;
-}
-
 bool RawLogMeta::eval_window(double& t0, double& t1) const {
   const auto it = values.find("eval_window_s");
   if (it == values.end()) return false;

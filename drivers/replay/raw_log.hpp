@@ -79,6 +79,7 @@
 #include <utility>
 #include <vector>
 
+#include "core/input_error.hpp"
 #include "core/sample.hpp"
 
 namespace ve::replay {
@@ -89,20 +90,10 @@ inline constexpr std::size_t kMaxLineBytes = 65536;
 /// in error_count() and still reported through next() and last_error().
 inline constexpr std::size_t kMaxStoredErrors = 100;
 
-/// Same shape as config::ConfigError (drivers do not depend on the config library).
-struct LogError {
-  std::string file;
-  int line = 0;    ///< 1-based; 0 = not tied to a position (e.g. unreadable file)
-  int column = 0;  ///< 1-based, in bytes
-  std::string field;  ///< column name or metadata key; may be empty
-  std::string message;
-
-  /// "FILE:LINE:COL: FIELD: MESSAGE"; position and field are left out when unknown.
-  std::string to_string() const;
-};
-
-/// All errors, one per line, in the to_string() form.
-std::string to_string(const std::vector<LogError>& errors);
+/// A problem in a raw log; `field` is the column name or metadata key.
+using LogError = core::InputError;
+/// All errors, one per line.
+using core::to_string;
 
 struct RawLogMeta {
   std::map<std::string, std::string> values;  ///< every `# key=value` line
