@@ -8,8 +8,8 @@ PACKAGES=(
   libfastrtps-dev libfastcdr-dev fastddsgen fastdds-tools default-jre-headless
   libeigen3-dev libyaml-cpp-dev libcli11-dev libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev
-  # systemd readiness and watchdog (sd_notify); .deb packaging
-  libsystemd-dev dpkg-dev
+  # systemd readiness and watchdog (sd_notify); .deb packaging; systemd-analyze for the unit's test
+  libsystemd-dev dpkg-dev systemd
   # fuzzing (libFuzzer) needs clang and its runtime
   clang libclang-rt-14-dev
   # a second DDS implementation, for the interoperability test
