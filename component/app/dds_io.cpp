@@ -495,9 +495,10 @@ void StateWriter::count_missed(Slot& slot, std::uint64_t periods, std::int64_t n
 }
 
 void StateWriter::note_write(Slot& slot) {
+  if (deadline_ns_ <= 0) return;  // no deadline offered: nothing to count
   const std::int64_t now = steady_ns();
   const std::int64_t last = slot.last_write_ns.load(std::memory_order_relaxed);
-  if (deadline_ns_ <= 0 || last == 0 || now - last < deadline_ns_) {
+  if (last == 0 || now - last < deadline_ns_) {
     slot.last_write_ns.store(now, std::memory_order_relaxed);
     return;
   }
@@ -520,11 +521,8 @@ bool StateWriter::write(int slot, const ve::dds::EncoderState& sample) {
 }
 
 bool StateWriter::write(const ve::dds::EncoderState& sample) {
-  for (auto& slot : slots_) {
-    if (slot->axis_id != sample.axis_id()) continue;
-    note_write(*slot);
-    return slot->writer->write(const_cast<ve::dds::EncoderState*>(&sample));
-  }
+  for (std::size_t i = 0; i < slots_.size(); ++i)
+    if (slots_[i]->axis_id == sample.axis_id()) return write(static_cast<int>(i), sample);
   return writer_->write(const_cast<ve::dds::EncoderState*>(&sample));
 }
 
