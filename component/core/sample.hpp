@@ -20,6 +20,8 @@ struct RawSample {
   bool accel_valid = false;
   double accel_base_mps2 = 0.0;            ///< optional accelerometer on the frame [m/s^2]
   bool accel_base_valid = false;
+  double temperature_c = 0.0;              ///< optional temperature reported by the sensor node [deg C]
+  bool temperature_valid = false;
 };
 
 /// Ground truth that only a simulator (or a recorded reference) can provide.

@@ -67,6 +67,49 @@ struct ImperfectionConfig {
   bool frame_accelerometer = false;
 };
 
+/// Temperature of the motor relative to its calibration, and what it does to the Hall
+/// signals. The temperature rise at simulated time t (the profile's clock) is
+///   dT(t) = offset_k + profile part, the profile part being
+///   constant: delta_k throughout;
+///   step:     0 before start_s, delta_k from start_s on;
+///   ramp:     0 before start_s, then linear to delta_k at start_s + duration_s, then held;
+///   warmup:   0 before start_s, then delta_k (1 - exp(-(t - start_s) / duration_s)).
+/// Hall i then reads offset_v + offset_i + offset_tc_i dT + amplitude_v gain_i (1 +
+/// gain_tc_i dT) (1 + magnet_remanence_per_k dT) field: the magnets' remanence scales
+/// every magnet's field alike; each sensor has its own sensitivity and zero-field offset
+/// coefficients, drawn once from the track seed (a property of the sensors):
+/// gain_tc_i = hall_gain_tc_per_k + hall_gain_tc_std_per_k N(0,1), offset_tc_i =
+/// hall_offset_tc_std_v_per_k N(0,1). dT = 0 (the defaults): bit for bit the simulator
+/// without a temperature model, whatever the coefficients.
+struct TemperatureConfig {
+  enum class Profile { constant, step, ramp, warmup };
+  Profile profile = Profile::constant;
+  double delta_k = 0.0;                     ///< change of the profile part [K], may be negative
+  double start_s = 0.0;                     ///< step / ramp / warmup: when the change begins [s]
+  double duration_s = 0.0;                  ///< ramp: time to reach delta_k; warmup: time constant [s] (> 0)
+  double offset_k = 0.0;                    ///< constant rise present from t = 0 [K]
+
+  double magnet_remanence_per_k = -0.0012;  ///< relative field change per K (NdFeB: -0.12 %/K)
+  double hall_gain_tc_per_k = -0.001;       ///< mean relative Hall sensitivity change per K
+  double hall_gain_tc_std_per_k = 0.0003;   ///< its spread between sensors [1/K]
+  double hall_offset_tc_std_v_per_k = 0.0003;  ///< zero-field offset drift, one sigma per sensor [V/K]
+  double reference_c = 25.0;                ///< temperature at calibration [deg C]
+
+  /// The sensor node reports its temperature: RawSample::temperature_c = reference_c +
+  /// dT + N(0, report_noise_k), rounded to a multiple of report_resolution_k (0: not rounded).
+  bool report = false;
+  double report_noise_k = 0.1;
+  double report_resolution_k = 0.0625;
+};
+
+/// Limits of TemperatureConfig: |offset_k| + |delta_k| (the largest |dT|), |remanence| and
+/// |mean gain coefficient|, the gain coefficients' spread, the offset drift's spread; so
+/// every factor (1 + c dT) stays positive (>= 0.1 even for a 6-sigma sensor).
+inline constexpr double kMaxTemperatureRiseK = 100.0;
+inline constexpr double kMaxTemperatureCoefficientPerK = 0.003;
+inline constexpr double kMaxTemperatureCoefficientStdPerK = 0.001;
+inline constexpr double kMaxHallOffsetDriftStdVPerK = 0.01;
+
 /// A sensor fault injected at a chosen time, so every failure case is a test.
 struct FaultConfig {
   enum class Kind {
@@ -94,6 +137,7 @@ inline constexpr int kMaxFaults = 4;
 struct SimConfig {
   MotionProfileConfig profile;
   ImperfectionConfig imperfections;
+  TemperatureConfig temperature;
   FaultConfig faults[kMaxFaults];
   int fault_count = 0;
   std::uint64_t noise_seed = 1;  ///< seeds the per-sample sensor noise

@@ -53,11 +53,13 @@ class Stream {
 constexpr std::uint64_t kKeyBoundary = 1ull << 60;
 constexpr std::uint64_t kKeyStrength = 2ull << 60;
 constexpr std::uint64_t kKeySensor = 3ull << 60;
+constexpr std::uint64_t kKeySensorTemperature = 4ull << 60;  // per-sensor temperature coefficients
 // Keys of per-sample streams besides the Hall + accelerometer noise (from noise_seed;
 // the sample index goes in the low bits): independent of that noise and of each other.
 constexpr std::uint64_t kKeyBiasWalk = 5ull << 60;
 constexpr std::uint64_t kKeyBaseAccel = 6ull << 60;
 constexpr std::uint64_t kKeyFault = 7ull << 60;
+constexpr std::uint64_t kKeyTemperatureReport = 8ull << 60;
 
 double track_normal(std::uint64_t seed, std::uint64_t key, std::int64_t index) {
   return Stream(seed, key ^ (static_cast<std::uint64_t>(index) & ((1ull << 60) - 1))).normal();
@@ -112,6 +114,28 @@ std::string SimSource::check(const core::MotorConfig& motor, const SimConfig& cf
   if (!std::isfinite(im.frame_reaction_ratio) || !finite_nonneg(im.frame_vibration_mps2) ||
       !finite_nonneg(im.frame_vibration_hz))
     return say("frame_reaction_ratio must be finite, frame_vibration_mps2 and frame_vibration_hz finite and >= 0");
+  const TemperatureConfig& tc = cfg.temperature;
+  if (!std::isfinite(tc.delta_k) || !std::isfinite(tc.offset_k) ||
+      !(std::abs(tc.delta_k) + std::abs(tc.offset_k) <= kMaxTemperatureRiseK))
+    return say("temperature offset_k and delta_k must be finite, |offset_k| + |delta_k| <= %g K", kMaxTemperatureRiseK);
+  if (!finite_nonneg(tc.start_s)) return say("temperature start_s %g must be >= 0", tc.start_s);
+  if (!finite_nonneg(tc.duration_s) ||
+      ((tc.profile == TemperatureConfig::Profile::ramp || tc.profile == TemperatureConfig::Profile::warmup) &&
+       !(tc.duration_s > 0.0)))
+    return say("temperature duration_s %g must be > 0 for a ramp or warmup profile", tc.duration_s);
+  if (!(std::abs(tc.magnet_remanence_per_k) <= kMaxTemperatureCoefficientPerK) ||
+      !(std::abs(tc.hall_gain_tc_per_k) <= kMaxTemperatureCoefficientPerK))
+    return say("temperature magnet_remanence_per_k and hall_gain_tc_per_k must be within +-%g per K",
+               kMaxTemperatureCoefficientPerK);
+  if (!finite_nonneg(tc.hall_gain_tc_std_per_k) || tc.hall_gain_tc_std_per_k > kMaxTemperatureCoefficientStdPerK)
+    return say("temperature hall_gain_tc_std_per_k %g must be in [0, %g] per K", tc.hall_gain_tc_std_per_k,
+               kMaxTemperatureCoefficientStdPerK);
+  if (!finite_nonneg(tc.hall_offset_tc_std_v_per_k) || tc.hall_offset_tc_std_v_per_k > kMaxHallOffsetDriftStdVPerK)
+    return say("temperature hall_offset_tc_std_v_per_k %g must be in [0, %g] V/K", tc.hall_offset_tc_std_v_per_k,
+               kMaxHallOffsetDriftStdVPerK);
+  if (!std::isfinite(tc.reference_c)) return say("temperature reference_c must be finite");
+  if (!finite_nonneg(tc.report_noise_k) || !finite_nonneg(tc.report_resolution_k))
+    return say("temperature report_noise_k and report_resolution_k must be finite and >= 0");
   if (!finite_nonneg(cfg.duration_s)) return say("duration_s %g must be >= 0 (0: unlimited)", cfg.duration_s);
 
   std::string why;
@@ -150,6 +174,10 @@ SimSource::SimSource(const core::MotorConfig& motor, const SimConfig& cfg, doubl
     s.gain = 1.0 + im.sensor_gain_std * draw.normal();
     s.offset_v = im.sensor_offset_std_v * draw.normal();
     s.position_m = motor.hall.offset_of(i) + im.sensor_placement_std_m * draw.normal();
+    // Its own stream: the draws above stay what they were before the temperature model.
+    Stream tc_draw(im.track_seed, kKeySensorTemperature ^ static_cast<std::uint64_t>(i));
+    s.gain_tc_per_k = cfg.temperature.hall_gain_tc_per_k + cfg.temperature.hall_gain_tc_std_per_k * tc_draw.normal();
+    s.offset_tc_v_per_k = cfg.temperature.hall_offset_tc_std_v_per_k * tc_draw.normal();
   }
   build_track();
 }
@@ -231,6 +259,34 @@ double SimSource::hall_voltage_noiseless(int sensor, double carriage_x_m) const 
   return motor_.hall.offset_v + s.offset_v + motor_.hall.amplitude_v * s.gain * track_field(carriage_x_m + s.position_m);
 }
 
+double SimSource::hall_voltage_noiseless(int sensor, double carriage_x_m, double temperature_rise_k) const {
+  // The branch keeps dT = 0 bit for bit the model without temperature.
+  if (temperature_rise_k == 0.0) return hall_voltage_noiseless(sensor, carriage_x_m);
+  const Sensor& s = sensors_[static_cast<std::size_t>(sensor)];
+  const double dt = temperature_rise_k;
+  return motor_.hall.offset_v + s.offset_v + s.offset_tc_v_per_k * dt +
+         motor_.hall.amplitude_v * s.gain * (1.0 + s.gain_tc_per_k * dt) *
+             (1.0 + cfg_.temperature.magnet_remanence_per_k * dt) * track_field(carriage_x_m + s.position_m);
+}
+
+double SimSource::temperature_at(double t_s) const {
+  const TemperatureConfig& tc = cfg_.temperature;
+  using P = TemperatureConfig::Profile;
+  double part = 0.0;
+  if (tc.profile == P::constant) {
+    part = tc.delta_k;
+  } else if (t_s >= tc.start_s && tc.delta_k != 0.0) {
+    const double since = t_s - tc.start_s;
+    switch (tc.profile) {
+      case P::step: part = tc.delta_k; break;
+      case P::ramp: part = since >= tc.duration_s ? tc.delta_k : tc.delta_k * (since / tc.duration_s); break;
+      case P::warmup: part = tc.delta_k * -std::expm1(-since / tc.duration_s); break;
+      case P::constant: break;
+    }
+  }
+  return tc.offset_k + part;
+}
+
 std::int64_t SimSource::sample_time_ns(std::uint64_t k) const {
   // 64-bit mantissa: k * 1e9 is exact below 1.8e10 samples, so t_ns is the exact
   // rounding of k / rate and never drifts.
@@ -264,6 +320,9 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   const bool coil = im.coil_field_v_per_mps2 != 0.0;
   const double coil_v = im.coil_field_v_per_mps2 * at_halls.acceleration_mps2;
 
+  const double dT = temperature_at(t_s);
+  temperature_rise_k_ = dT;
+
   Stream noise(cfg_.noise_seed, k);
   out.t_ns = sample_time_ns(k);
   out.seq = k;
@@ -271,7 +330,7 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   out.hall_valid_mask = (1u << motor_.hall.count) - 1u;
   out.hall_v.fill(0.0);
   for (int i = 0; i < motor_.hall.count; ++i) {
-    double v = hall_voltage_noiseless(i, hall_x);
+    double v = hall_voltage_noiseless(i, hall_x, dT);
     if (coil) v += coil_v;
     v += motor_.hall.noise_v * noise.normal();
     v = std::clamp(v, motor_.adc.min_v, motor_.adc.max_v);
@@ -304,6 +363,17 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   } else {
     out.accel_base_mps2 = 0.0;
     out.accel_base_valid = false;
+  }
+
+  if (cfg_.temperature.report) {
+    const TemperatureConfig& tc = cfg_.temperature;
+    double c = tc.reference_c + dT + tc.report_noise_k * Stream(cfg_.noise_seed, kKeyTemperatureReport ^ k).normal();
+    if (tc.report_resolution_k > 0.0) c = std::round(c / tc.report_resolution_k) * tc.report_resolution_k;
+    out.temperature_c = c;
+    out.temperature_valid = true;
+  } else {
+    out.temperature_c = 0.0;
+    out.temperature_valid = false;
   }
 
   if (cfg_.fault_count > 0) inject_faults(t_s, k, out);

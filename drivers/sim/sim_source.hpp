@@ -28,6 +28,9 @@ namespace ve::sim {
 ///   that starts at the first sample read; clamped to +-range_mps2.
 /// - Frame accelerometer (frame_accelerometer): a_frame(t - d) + its own N(0,
 ///   noise_mps2); no bias, scale error or walk; clamped to +-range_mps2.
+/// - Temperature (SimConfig::temperature, see TemperatureConfig): the rise dT(t) at the
+///   sample instant scales the magnets' field and each Hall's sensitivity and shifts
+///   each Hall's offset; with report, RawSample::temperature_c carries it. dT = 0: no effect.
 class SimSource final : public drivers::SensorSource {
  public:
   /// Never throws on bad parameters: ok() is then false, last_error() says why and
@@ -59,7 +62,10 @@ class SimSource final : public drivers::SensorSource {
 
   /// Output of Hall `sensor` with the carriage at `carriage_x_m`, with all track and
   /// sensor imperfections but before noise, ADC clamping and quantization [V].
+  /// At the calibration temperature (temperature rise 0).
   double hall_voltage_noiseless(int sensor, double carriage_x_m) const;
+  /// The same with the motor `temperature_rise_k` warmer than at calibration [V].
+  double hall_voltage_noiseless(int sensor, double carriage_x_m, double temperature_rise_k) const;
   /// Normalised track field at track position `x_m` (ideal: sin(2 pi x / pitch); with
   /// field_third_harmonic h3: sin(theta) + h3 sin(3 theta) of the local magnet phase
   /// theta, times the local magnet strength). Excludes the coil field, which depends on
@@ -73,6 +79,15 @@ class SimSource final : public drivers::SensorSource {
   /// Bias of the moving accelerometer at the last sample read (accel_bias_mps2 plus the
   /// random walk so far) [m/s^2].
   double accel_bias_now_mps2() const { return bias_now_mps2_; }
+  /// Temperature rise over the calibration temperature at simulated time `t_s` (the
+  /// profile's clock) [K]: offset_k plus the profile part.
+  double temperature_at(double t_s) const;
+  /// Temperature rise at the instant of the last sample read (0 before the first) [K].
+  double temperature_rise_k() const { return temperature_rise_k_; }
+  /// Sensor `sensor`'s relative sensitivity change per K, as drawn [1/K].
+  double hall_gain_tc_per_k(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].gain_tc_per_k; }
+  /// Sensor `sensor`'s zero-field offset drift, as drawn [V/K].
+  double hall_offset_tc_v_per_k(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].offset_tc_v_per_k; }
   /// Where sensor `sensor` really sits relative to the carriage (offset + placement error) [m].
   double sensor_position_m(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].position_m; }
 
@@ -89,6 +104,8 @@ class SimSource final : public drivers::SensorSource {
     double position_m = 0.0;  ///< relative to the carriage
     double gain = 1.0;
     double offset_v = 0.0;
+    double gain_tc_per_k = 0.0;      ///< sensitivity temperature coefficient
+    double offset_tc_v_per_k = 0.0;  ///< offset drift
   };
 
   void build_track();
@@ -119,6 +136,7 @@ class SimSource final : public drivers::SensorSource {
   double bias_step_mps2_ = 0.0;     // random-walk step per sample, one sigma
   double bias_walk_mps2_ = 0.0;     // walk so far (sequential state)
   double bias_now_mps2_ = 0.0;
+  double temperature_rise_k_ = 0.0;  // at the last sample read
 
   std::uint64_t first_index_ = 0;
   std::uint64_t max_samples_ = 0;  // 0: unlimited

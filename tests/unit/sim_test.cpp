@@ -1017,4 +1017,236 @@ TEST(SimSource, StopWakesBlockedRead) {
   EXPECT_EQ(src.read(s), ReadStatus::stopped);
 }
 
+// ---- temperature model
+
+using TProfile = ve::sim::TemperatureConfig::Profile;
+
+SimConfig realistic_offline() {
+  SimConfig cfg = offline(Kind::multisine);
+  auto& im = cfg.imperfections;
+  im.magnet_strength_std = 0.015;
+  im.magnet_placement_std_m = 20e-6;
+  im.field_third_harmonic = 0.03;
+  im.sensor_placement_std_m = 50e-6;
+  im.sensor_gain_std = 0.03;
+  im.sensor_offset_std_v = 0.02;
+  im.hall_delay_s = 20e-6;
+  im.coil_field_v_per_mps2 = 0.001;
+  im.frame_accelerometer = true;
+  return cfg;
+}
+
+bool same_with_base(const std::vector<RawSample>& a, const std::vector<RawSample>& b) {
+  if (!same(a, b)) return false;
+  for (std::size_t k = 0; k < a.size(); ++k)
+    if (a[k].accel_base_mps2 != b[k].accel_base_mps2 || a[k].temperature_valid != b[k].temperature_valid)
+      return false;
+  return true;
+}
+
+TEST(SimTemperature, NoRiseLeavesTheStreamUnchangedWhateverTheCoefficients) {
+  MotorConfig motor;
+  const SimConfig plain = realistic_offline();
+  SimConfig coeffs = plain;
+  auto& t = coeffs.temperature;
+  t.magnet_remanence_per_k = -0.003;
+  t.hall_gain_tc_per_k = 0.002;
+  t.hall_gain_tc_std_per_k = 0.001;
+  t.hall_offset_tc_std_v_per_k = 0.005;
+  t.reference_c = 40.0;
+  t.profile = TProfile::ramp;  // delta_k = 0: the ramp goes nowhere
+  t.duration_s = 1.0;
+  const auto a = run(motor, plain, 3000);
+  EXPECT_TRUE(same_with_base(a, run(motor, coeffs, 3000)));
+  // The coefficients do not disturb the other track draws either.
+  SimSource sa(motor, plain), sb(motor, coeffs);
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(sa.sensor_position_m(i), sb.sensor_position_m(i));
+  for (double x = 0.1; x < 0.2; x += 0.00731)
+    for (int i = 0; i < 4; ++i) {
+      EXPECT_EQ(sa.hall_voltage_noiseless(i, x), sb.hall_voltage_noiseless(i, x));
+      EXPECT_EQ(sb.hall_voltage_noiseless(i, x, 0.0), sb.hall_voltage_noiseless(i, x));
+    }
+  // A rise does change it.
+  coeffs.temperature.offset_k = 1.0;
+  EXPECT_FALSE(same(a, run(motor, coeffs, 3000)));
+}
+
+TEST(SimTemperature, PerSensorCoefficientsComeFromTheTrackSeed) {
+  MotorConfig motor;
+  SimConfig cfg = offline(Kind::standstill);
+  SimSource a(motor, cfg);
+  const auto& t = cfg.temperature;
+  double mean = 0.0;
+  bool offsets_differ = false;
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_NEAR(a.hall_gain_tc_per_k(i), t.hall_gain_tc_per_k, 5 * t.hall_gain_tc_std_per_k);
+    EXPECT_NEAR(a.hall_offset_tc_v_per_k(i), 0.0, 5 * t.hall_offset_tc_std_v_per_k);
+    mean += a.hall_gain_tc_per_k(i) / 4;
+    offsets_differ = offsets_differ || a.hall_offset_tc_v_per_k(i) != a.hall_offset_tc_v_per_k(0);
+  }
+  EXPECT_NE(a.hall_gain_tc_per_k(0), a.hall_gain_tc_per_k(1));
+  EXPECT_TRUE(offsets_differ);
+  cfg.noise_seed += 1;  // the noise seed does not change the sensors
+  SimSource b(motor, cfg);
+  cfg.imperfections.track_seed += 1;
+  SimSource c(motor, cfg);
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_EQ(a.hall_gain_tc_per_k(i), b.hall_gain_tc_per_k(i));
+    EXPECT_EQ(a.hall_offset_tc_v_per_k(i), b.hall_offset_tc_v_per_k(i));
+    EXPECT_NE(a.hall_gain_tc_per_k(i), c.hall_gain_tc_per_k(i));
+  }
+}
+
+TEST(SimTemperature, TenKelvinWarmerScalesEachHallByItsCoefficients) {
+  MotorConfig motor;
+  SimConfig cold = realistic_offline();
+  cold.profile.kind = Kind::standstill;
+  cold.imperfections.sensor_offset_std_v = 0.0;  // so the zero-field output is motor.hall.offset_v
+  SimConfig warm = cold;
+  warm.temperature.offset_k = 10.0;
+  SimSource c(motor, cold), w(motor, warm);
+  ASSERT_TRUE(w.ok()) << w.last_error();
+  RawSample s;
+  ASSERT_EQ(w.read(s), ReadStatus::ok);
+  EXPECT_EQ(w.temperature_rise_k(), 10.0);
+  EXPECT_EQ(w.temperature_at(0.0), 10.0);
+  EXPECT_EQ(w.temperature_at(123.0), 10.0);
+  EXPECT_FALSE(s.temperature_valid);  // not reported by default
+  const double p = motor.magnet_pitch_m;
+  for (int i = 0; i < 4; ++i) {
+    // Peak amplitude over one magnet period (the track under the sensor is the same for
+    // both; only the temperature differs).
+    auto peak = [&](const SimSource& src, double dT) {
+      double lo = 1e9, hi = -1e9;
+      for (double x = 0.3; x < 0.3 + p; x += p / 2000) {
+        const double v = src.hall_voltage_noiseless(i, x, dT);
+        lo = std::min(lo, v);
+        hi = std::max(hi, v);
+      }
+      return 0.5 * (hi - lo);
+    };
+    const double scale = (1.0 + 10.0 * w.hall_gain_tc_per_k(i)) * (1.0 - 0.012);
+    EXPECT_NEAR(peak(w, 10.0) / peak(c, 0.0), scale, 1e-9) << i;
+    EXPECT_NEAR(scale, 0.978, 0.02) << i;  // about -1 % (sensor) -1.2 % (magnets)
+    // Everywhere: warm - offset = scale (cold - offset) + the sensor's offset drift.
+    for (double x = 0.3; x < 0.3 + p; x += p / 37)
+      EXPECT_NEAR(w.hall_voltage_noiseless(i, x, 10.0) - motor.hall.offset_v,
+                  scale * (c.hall_voltage_noiseless(i, x) - motor.hall.offset_v) + 10.0 * w.hall_offset_tc_v_per_k(i),
+                  1e-12)
+          << i << " " << x;
+    // The source itself reads the warm signal: noiseless at 10 K plus the coil field.
+    const double x = w.truth()->position_m;
+    const double lsb = motor.adc.lsb_v();
+    EXPECT_NEAR(s.hall_v[static_cast<std::size_t>(i)],
+                std::clamp(w.hall_voltage_noiseless(i, x, 10.0), motor.adc.min_v, motor.adc.max_v),
+                6 * motor.hall.noise_v + lsb);
+  }
+}
+
+TEST(SimTemperature, ProfilesStepRampWarmup) {
+  MotorConfig motor;
+  SimConfig cfg = offline(Kind::standstill);
+  auto& t = cfg.temperature;
+  t.offset_k = 2.0;
+  t.delta_k = -8.0;
+  t.start_s = 1.0;
+  t.duration_s = 4.0;
+
+  t.profile = TProfile::constant;
+  EXPECT_EQ(SimSource(motor, cfg).temperature_at(0.0), -6.0);
+
+  t.profile = TProfile::step;
+  {
+    SimSource src(motor, cfg);
+    EXPECT_EQ(src.temperature_at(0.999), 2.0);
+    EXPECT_EQ(src.temperature_at(1.0), -6.0);
+    EXPECT_EQ(src.temperature_at(100.0), -6.0);
+  }
+  t.profile = TProfile::ramp;
+  {
+    SimSource src(motor, cfg);
+    ASSERT_TRUE(src.ok()) << src.last_error();
+    EXPECT_EQ(src.temperature_at(0.5), 2.0);
+    EXPECT_DOUBLE_EQ(src.temperature_at(3.0), 2.0 - 4.0);
+    EXPECT_DOUBLE_EQ(src.temperature_at(5.0), -6.0);  // reaches delta_k at start + duration ...
+    EXPECT_EQ(src.temperature_at(5.5), -6.0);         // ... and holds
+    EXPECT_EQ(src.temperature_at(1e4), -6.0);
+  }
+  t.profile = TProfile::warmup;
+  {
+    SimSource src(motor, cfg);
+    EXPECT_EQ(src.temperature_at(0.9), 2.0);
+    for (double tt : {1.0, 2.0, 5.0, 9.0, 30.0})
+      EXPECT_NEAR(src.temperature_at(tt), 2.0 - 8.0 * (1.0 - std::exp(-(tt - 1.0) / 4.0)), 1e-12) << tt;
+  }
+  // The source follows the profile sample by sample.
+  t.start_s = 0.01;
+  t.duration_s = 0.02;
+  t.profile = TProfile::ramp;
+  SimSource src(motor, cfg);
+  RawSample s;
+  for (int n = 0; n < 400; ++n) {
+    ASSERT_EQ(src.read(s), ReadStatus::ok);
+    EXPECT_EQ(src.temperature_rise_k(), src.temperature_at(static_cast<double>(n) / motor.sample_rate_hz));
+  }
+  EXPECT_EQ(src.temperature_rise_k(), -6.0);
+  // Ramps and warm-ups need a duration.
+  t.duration_s = 0.0;
+  EXPECT_NE(SimSource::check(motor, cfg).find("duration_s"), std::string::npos);
+  t.profile = TProfile::step;
+  EXPECT_EQ(SimSource::check(motor, cfg), "");
+}
+
+TEST(SimTemperature, ReportedTemperatureIsNoisyAndQuantised) {
+  MotorConfig motor;
+  SimConfig cfg = offline(Kind::standstill);
+  auto& t = cfg.temperature;
+  t.report = true;
+  t.offset_k = 10.0;
+  t.reference_c = 30.0;
+  const auto quiet = run(motor, offline(Kind::standstill), 4000);
+  const auto samples = run(motor, cfg, 4000);
+  double sum = 0.0, sum2 = 0.0;
+  for (const RawSample& s : samples) {
+    ASSERT_TRUE(s.temperature_valid);
+    EXPECT_EQ(s.temperature_c, std::round(s.temperature_c / 0.0625) * 0.0625);
+    sum += s.temperature_c;
+    sum2 += (s.temperature_c - 40.0) * (s.temperature_c - 40.0);
+  }
+  EXPECT_NEAR(sum / 4000, 40.0, 0.01);
+  EXPECT_NEAR(std::sqrt(sum2 / 4000), std::sqrt(0.1 * 0.1 + 0.0625 * 0.0625 / 12), 0.01);
+  // Reporting draws its own noise: the accelerometer noise is untouched.
+  for (std::size_t k = 0; k < samples.size(); ++k) EXPECT_EQ(samples[k].accel_mps2, quiet[k].accel_mps2);
+  // Without noise or rounding it is exactly reference + rise.
+  t.report_noise_k = 0.0;
+  t.report_resolution_k = 0.0;
+  EXPECT_EQ(run(motor, cfg, 1)[0].temperature_c, 40.0);
+}
+
+TEST(SimTemperature, InvalidTemperatureConfigIsReported) {
+  MotorConfig motor;
+  auto bad = [&](auto set) {
+    SimConfig cfg = offline(Kind::standstill);
+    set(cfg.temperature);
+    return SimSource::check(motor, cfg);
+  };
+  using TC = ve::sim::TemperatureConfig;
+  EXPECT_NE(bad([](TC& t) { t.delta_k = 150.0; }).find("delta_k"), std::string::npos);
+  EXPECT_NE(bad([](TC& t) { t.offset_k = std::nan(""); }).find("offset_k"), std::string::npos);
+  EXPECT_NE(bad([](TC& t) { t.start_s = -1.0; }).find("start_s"), std::string::npos);
+  EXPECT_NE(bad([](TC& t) { t.magnet_remanence_per_k = -0.01; }).find("remanence"), std::string::npos);
+  EXPECT_NE(bad([](TC& t) { t.hall_gain_tc_std_per_k = -0.001; }).find("hall_gain_tc_std_per_k"), std::string::npos);
+  EXPECT_NE(bad([](TC& t) { t.hall_offset_tc_std_v_per_k = 1.0; }).find("hall_offset_tc_std_v_per_k"),
+            std::string::npos);
+  EXPECT_NE(bad([](TC& t) { t.report_resolution_k = -0.1; }).find("report_resolution_k"), std::string::npos);
+  EXPECT_EQ(bad([](TC& t) {
+              t.profile = TC::Profile::warmup;
+              t.delta_k = -20.0;
+              t.offset_k = 30.0;
+              t.duration_s = 600.0;
+              t.report = true;
+            }),
+            "");
+}
+
 }  // namespace
