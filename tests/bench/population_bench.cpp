@@ -1,0 +1,289 @@
+// population_bench: accuracy on motors nobody tuned the estimator on. Not a test
+// (no pass/fail, no timing asserts): a report.
+//
+// For each of N seeded random motors (drivers/sim/population.hpp: pitch 8-40 mm,
+// 3-8 Halls at various spacings, 2-10 kHz, delays, tolerances, 10/12/16-bit ADC,
+// travel 0.2-2 m), given only its data-sheet values:
+//  1. records one simulated calibration run and calibrates it twice, with the
+//     simulator as the ruler and without a ruler (given the Hall delay, as the
+//     hardware's design would give it);
+//  2. runs the five motion scenarios under three conditions (as calibrated, a
+//     +10 K ramp, a -10 K step) with each calibration;
+//  3. probes fault detection: in the +10 K ramp multisine run, one Hall sensor
+//     dies (stuck at its zero-field output) at 5 s;
+//  4. prints worst and median position / velocity RMS (bias included), the
+//     smallest +-2 sigma coverage, the smallest VALID time, healthy sensors
+//     flagged, and writes the tables and a plot.
+//
+// Run from the repository root:
+//   ./build/tests/population_bench [--motors 20] [--first-seed 1] [--out-dir build/accuracy]
+//                                  [--jobs 2] [--no-temperature]
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "config/loader.hpp"
+#include "population_eval.hpp"
+
+namespace {
+
+using namespace ve;
+using bench::Condition;
+
+struct Options {
+  int motors = 20;
+  std::uint64_t first_seed = 1;
+  std::string out_dir = "build/accuracy";
+  int jobs = 2;
+  bool temperature = true;
+  std::string command;
+};
+
+constexpr Condition kConditions[] = {Condition::as_calibrated, Condition::ramp_plus_10k, Condition::step_minus_10k};
+constexpr int kConditionCount = 3;
+constexpr int kScenarioCount = 5;
+
+struct Cell {  // one motor, one ruler mode, one condition, one scenario
+  bool ok = false;
+  double pos_rms = NAN, vel_rms = NAN, pos_cov = NAN, vel_cov = NAN, valid = NAN, pos_bias = NAN;
+  std::uint32_t flagged = 0;
+};
+
+struct MotorResult {
+  sim::PopulationMotor motor;
+  bench::CalibrationOutcome cal[2];  // 0: with ruler, 1: without
+  Cell cell[2][kConditionCount][kScenarioCount];
+  double detect_s[2] = {-1.0, -1.0};
+  std::string note;
+};
+
+bool parse(int argc, char** argv, Options& o) {
+  o.command = argv[0];
+  for (int i = 1; i < argc; ++i) o.command += std::string(" ") + argv[i];
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> const char* { return i + 1 < argc ? argv[++i] : nullptr; };
+    if (a == "--motors" || a == "--first-seed" || a == "--jobs") {
+      const char* v = next();
+      char* end = nullptr;
+      const long n = v ? std::strtol(v, &end, 10) : -1;
+      if (!v || *end != '\0' || n < 1 || n > 100000) {
+        std::fprintf(stderr, "%s: expected a positive integer\n", a.c_str());
+        return false;
+      }
+      if (a == "--motors") o.motors = static_cast<int>(n);
+      if (a == "--first-seed") o.first_seed = static_cast<std::uint64_t>(n);
+      if (a == "--jobs") o.jobs = static_cast<int>(n);
+    } else if (a == "--out-dir") {
+      const char* v = next();
+      if (!v) return false;
+      o.out_dir = v;
+    } else if (a == "--no-temperature") {
+      o.temperature = false;
+    } else {
+      std::fprintf(stderr,
+                   "usage: %s [--motors N] [--first-seed S] [--out-dir DIR] [--jobs J] [--no-temperature]\n",
+                   argv[0]);
+      return false;
+    }
+  }
+  return true;
+}
+
+MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning, const Options& o) {
+  MotorResult m;
+  m.motor = sim::draw_population_motor(seed, tuning);
+  std::vector<core::ReferenceSegment> segments;
+  std::string error;
+  if (!bench::record_population_calibration(m.motor, segments, error)) {
+    m.note = "calibration run failed: " + error;
+    return m;
+  }
+  const auto scenarios = bench::population_scenarios(m.motor.datasheet.travel_m);
+  for (int ruler = 0; ruler < 2; ++ruler) {
+    m.cal[ruler] = bench::calibrate_population_motor(m.motor, segments, ruler == 0);
+    const auto& c = m.cal[ruler];
+    if (!c.ok) continue;
+    for (int k = 0; k < kConditionCount; ++k) {
+      if (!o.temperature && k > 0) continue;
+      for (int s = 0; s < kScenarioCount; ++s) {
+        const auto r = bench::run_population_scenario(m.motor, c, scenarios[static_cast<std::size_t>(s)], kConditions[k],
+                                                      1000 + seed);
+        Cell& cell = m.cell[ruler][k][s];
+        cell.ok = r.ok;
+        if (!r.ok) continue;
+        cell.pos_rms = r.err.position_m.rms();
+        cell.pos_bias = r.err.position_m.bias();
+        cell.vel_rms = r.err.velocity_mps.rms();
+        cell.pos_cov = r.err.position_coverage();
+        cell.vel_cov = r.err.velocity_coverage();
+        cell.valid = r.valid_fraction();
+        cell.flagged = r.flagged;
+      }
+    }
+    if (o.temperature) {
+      bench::FaultProbe probe;
+      probe.inject = true;
+      probe.sensor = static_cast<int>(seed % static_cast<std::uint64_t>(m.motor.datasheet.hall.count));
+      probe.at_s = 5.0;
+      const auto r = bench::run_population_scenario(m.motor, c, scenarios[3], Condition::ramp_plus_10k, 2000 + seed, probe);
+      m.detect_s[ruler] = r.probe_flagged_before ? -2.0 : r.detect_s;
+    }
+  }
+  return m;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+std::string f(const char* format, double x) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, format, x);
+  return buf;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  if (!parse(argc, argv, o)) return 2;
+  const auto machine = config::load_machine_file("config/machines/sim.yaml");
+  if (!machine.ok()) {
+    std::fprintf(stderr, "run from the repository root: %s\n", config::to_string(machine.errors).c_str());
+    return 2;
+  }
+  // The estimator's tuning is the shipped motor file template's: not a property of the motor.
+  const core::FilterConfig tuning = machine.config.axes.at(0).motor.filter;
+
+  std::vector<MotorResult> results(static_cast<std::size_t>(o.motors));
+  std::mutex print;
+  std::atomic<int> next{0};
+  std::vector<std::thread> workers;
+  for (int j = 0; j < std::max(1, o.jobs); ++j) {
+    workers.emplace_back([&] {
+      for (int i = next++; i < o.motors; i = next++) {
+        const std::uint64_t seed = o.first_seed + static_cast<std::uint64_t>(i);
+        results[static_cast<std::size_t>(i)] = evaluate_motor(seed, tuning, o);
+        const auto& r = results[static_cast<std::size_t>(i)];
+        std::lock_guard<std::mutex> lock(print);
+        std::fprintf(stderr, "[%2d/%d] %s\n", i + 1, o.motors, r.motor.summary().c_str());
+        for (int ruler = 0; ruler < 2; ++ruler) {
+          const auto& c = r.cal[ruler];
+          std::fprintf(stderr, "        %s: %s in %.2f s%s%s\n", ruler == 0 ? "ruler   " : "no ruler",
+                       !c.ok ? "FAILED" : c.good ? "good" : "POOR", c.seconds, c.error.empty() ? "" : ": ",
+                       c.error.c_str());
+          for (const auto& p : c.problems) std::fprintf(stderr, "          problem: %s\n", p.c_str());
+          for (int k = 0; k < kConditionCount; ++k) {
+            std::string line;
+            for (int s = 0; s < kScenarioCount; ++s) {
+              const Cell& x = r.cell[ruler][k][s];
+              line += x.ok ? f(" %7.3f", x.pos_rms * 1e6) + f("/%.4f", x.vel_rms * 1e3) + f("/%2.0f%%", 100 * x.pos_cov) +
+                                 f("/%2.0f%%", 100 * x.vel_cov) + f("/%3.0f%%", 100 * x.valid) +
+                                 (x.flagged ? f("/F%02x", x.flagged) : "")
+                           : "       -";
+            }
+            std::fprintf(stderr, "          %-14s%s\n", bench::condition_name(kConditions[k]), line.c_str());
+          }
+          std::fprintf(stderr, "          fault probe: %s\n",
+                       r.detect_s[ruler] == -2.0 ? "flagged BEFORE it failed" : r.detect_s[ruler] < 0 ? "NOT flagged" : f("flagged after %.1f ms", r.detect_s[ruler] * 1e3).c_str());
+        }
+      }
+    });
+  }
+  for (auto& w : workers) w.join();
+
+  const auto scen = bench::population_scenarios(1.0);
+  std::ostringstream md;
+  md << "# Accuracy on a population of motors\n\n"
+     << "`" << o.command << "`: " << o.motors << " motors (seeds " << o.first_seed << ".." << o.first_seed + o.motors - 1
+     << "), each calibrated from one simulated calibration run (sweep at "
+     << bench::population_calibration_run().sweep_speed_mps << " m/s) with and without a ruler. "
+     << "RMS includes the bias; coverage is the share of samples within +-2 sigma; VALID is the share of the window "
+        "with the VALID bit.\n\n";
+  int cal_ok[2] = {0, 0}, cal_good[2] = {0, 0};
+  double worst_cal_s_per_m[2] = {0, 0};
+  for (const auto& r : results)
+    for (int ruler = 0; ruler < 2; ++ruler) {
+      cal_ok[ruler] += r.cal[ruler].ok;
+      cal_good[ruler] += r.cal[ruler].good;
+      worst_cal_s_per_m[ruler] = std::max(worst_cal_s_per_m[ruler], r.cal[ruler].seconds / r.motor.datasheet.travel_m);
+    }
+  for (int ruler = 0; ruler < 2; ++ruler)
+    md << "* Calibration " << (ruler == 0 ? "with a ruler" : "without a ruler") << ": " << cal_good[ruler] << " of "
+       << o.motors << " good, " << cal_ok[ruler] - cal_good[ruler] << " poor, " << o.motors - cal_ok[ruler]
+       << " failed; longest " << f("%.2f", worst_cal_s_per_m[ruler]) << " s of compute per metre of sweep.\n";
+  md << "\n| ruler | condition | scenario | pos RMS worst / median [um] | vel RMS worst / median [mm/s] | "
+        "+-2sigma pos min / median | +-2sigma vel min / median | VALID min | motors with a healthy sensor flagged |\n"
+     << "|---|---|---|---|---|---|---|---|---|\n";
+  for (int ruler = 0; ruler < 2; ++ruler)
+    for (int k = 0; k < kConditionCount; ++k) {
+      if (!o.temperature && k > 0) continue;
+      for (int s = 0; s < kScenarioCount; ++s) {
+        std::vector<double> p, v, pc, vc, va;
+        int flagged = 0, missing = 0;
+        for (const auto& r : results) {
+          const Cell& c = r.cell[ruler][k][s];
+          if (!c.ok) {
+            ++missing;
+            continue;
+          }
+          p.push_back(c.pos_rms * 1e6);
+          v.push_back(c.vel_rms * 1e3);
+          pc.push_back(100 * c.pos_cov);
+          vc.push_back(100 * c.vel_cov);
+          va.push_back(100 * c.valid);
+          flagged += c.flagged != 0;
+        }
+        auto mx = [](const std::vector<double>& x) { return x.empty() ? NAN : *std::max_element(x.begin(), x.end()); };
+        auto mn = [](const std::vector<double>& x) { return x.empty() ? NAN : *std::min_element(x.begin(), x.end()); };
+        md << "| " << (ruler == 0 ? "yes" : "no") << " | " << bench::condition_name(kConditions[k]) << " | "
+           << scen[static_cast<std::size_t>(s)].name << " | " << f("%.3f", mx(p)) << " / " << f("%.3f", median(p))
+           << " | " << f("%.4f", mx(v)) << " / " << f("%.4f", median(v)) << " | " << f("%.1f", mn(pc)) << " / "
+           << f("%.1f", median(pc)) << " | " << f("%.1f", mn(vc)) << " / " << f("%.1f", median(vc)) << " | "
+           << f("%.2f", mn(va)) << " | " << flagged << (missing ? " (" + std::to_string(missing) + " not run)" : "")
+           << " |\n";
+      }
+    }
+  if (o.temperature) {
+    for (int ruler = 0; ruler < 2; ++ruler) {
+      std::vector<double> d;
+      int missed = 0, early = 0;
+      for (const auto& r : results) {
+        if (!r.cal[ruler].ok) continue;
+        if (r.detect_s[ruler] == -2.0) ++early;
+        else if (r.detect_s[ruler] < 0) ++missed;
+        else d.push_back(r.detect_s[ruler] * 1e3);
+      }
+      md << "\nFault probe (" << (ruler == 0 ? "ruler" : "no ruler")
+         << "; a Hall sensor dies at 5 s of the +10 K multisine): flagged in " << d.size() << " runs, missed in "
+         << missed << ", flagged before it failed in " << early << "; detection time median " << f("%.1f", median(d)) << " ms, worst "
+         << f("%.1f", d.empty() ? NAN : *std::max_element(d.begin(), d.end())) << " ms.\n";
+    }
+  }
+  md << "\n## Motors\n\n";
+  for (const auto& r : results) md << "* " << r.motor.summary() << (r.note.empty() ? "" : " -- " + r.note) << "\n";
+  std::printf("%s", md.str().c_str());
+
+  std::error_code ec;
+  std::filesystem::create_directories(o.out_dir, ec);
+  const std::string path = o.out_dir + "/population.md";
+  std::ofstream out(path + ".tmp");
+  out << md.str();
+  out.close();
+  std::filesystem::rename(path + ".tmp", path, ec);
+  std::fprintf(stderr, "written: %s\n", path.c_str());
+  return 0;
+}

@@ -1,0 +1,296 @@
+// Accuracy on a population of motors: calibrate a drawn motor (with or without a
+// ruler) from a simulated calibration run, then run the five motion scenarios
+// under a temperature condition and score the product's estimate against the
+// simulator's truth. Shared by the population benchmark (tests/bench) and the
+// three-motor guard in the unit tests; header-only so that both can build it.
+#pragma once
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "core/error_stats.hpp"
+#include "core/identification.hpp"
+#include "core/pipeline.hpp"
+#include "core/self_calibration.hpp"
+#include "core/status.hpp"
+#include "sim/calibration_run.hpp"
+#include "sim/population.hpp"
+#include "sim/sim_source.hpp"
+
+namespace ve::bench {
+
+using Kind = sim::MotionProfileConfig::Kind;
+
+struct PopScenario {
+  std::string name;
+  sim::MotionProfileConfig profile;
+  double t0_s = 0.0, t1_s = 0.0;  ///< evaluation window; t1 from the profile when until_steady_end
+  bool until_steady_end = false;
+};
+
+/// The five scenarios of the accuracy benchmark, placed on this motor's travel.
+/// A short motor cannot hold the full multisine or reach 1.5 m/s: the speed is
+/// lowered until the profile fits (said in the name).
+inline std::vector<PopScenario> population_scenarios(double travel_m) {
+  std::vector<PopScenario> v;
+  auto base = [&](const char* name, Kind kind) {
+    PopScenario s;
+    s.name = name;
+    s.profile.kind = kind;
+    s.profile.min_m = 0.02 * travel_m;
+    s.profile.max_m = 0.98 * travel_m;
+    s.profile.start_m = 0.5 * travel_m;
+    return s;
+  };
+  {
+    PopScenario s = base("standstill", Kind::standstill);
+    s.profile.start_m = 0.4321 * travel_m;
+    s.t0_s = 0.5;
+    s.t1_s = 4.0;
+    v.push_back(s);
+  }
+  {
+    PopScenario s = base("1 m/s", Kind::constant_velocity);
+    s.profile.start_m = 0.03 * travel_m;
+    s.profile.velocity_mps = 1.0;
+    s.t0_s = 0.05;
+    s.until_steady_end = true;
+    v.push_back(s);
+  }
+  {
+    PopScenario s = base("5 m/s^2", Kind::constant_acceleration);
+    s.profile.start_m = 0.03 * travel_m;
+    s.profile.velocity_mps = 0.0;
+    s.profile.acceleration_mps2 = 5.0;
+    s.t0_s = 0.05;
+    s.until_steady_end = true;
+    v.push_back(s);
+  }
+  {
+    PopScenario s = base("multisine", Kind::multisine);
+    s.profile.max_velocity_mps = 2.0;
+    s.profile.max_acceleration_mps2 = 10.0;
+    s.profile.min_m = 0.05 * travel_m;
+    s.profile.max_m = 0.95 * travel_m;
+    s.t0_s = 0.5;
+    s.t1_s = 10.0;
+    v.push_back(s);
+  }
+  {
+    PopScenario s = base("point-to-point", Kind::point_to_point);
+    s.profile.max_velocity_mps = 1.5;
+    s.profile.max_acceleration_mps2 = 10.0;
+    s.profile.max_jerk_mps3 = 250.0;
+    s.profile.dwell_s = 0.1;
+    s.profile.min_m = 0.05 * travel_m;
+    s.profile.max_m = 0.95 * travel_m;
+    s.t0_s = 0.5;
+    s.t1_s = 10.0;
+    v.push_back(s);
+  }
+  return v;
+}
+
+enum class Condition { as_calibrated, ramp_plus_10k, step_minus_10k };
+inline const char* condition_name(Condition c) {
+  switch (c) {
+    case Condition::as_calibrated: return "as calibrated";
+    case Condition::ramp_plus_10k: return "+10 K ramp";
+    case Condition::step_minus_10k: return "-10 K step";
+  }
+  return "?";
+}
+
+struct CalibrationOutcome {
+  bool ok = false;     ///< a calibration came out at all
+  bool good = false;   ///< its own verdict
+  core::Calibration cal;
+  std::vector<std::string> problems;
+  std::string error;
+  double seconds = 0.0;  ///< identification's compute time (the recording excluded)
+  /// Where the calibration's position 0 lies in the simulator's frame: 0 with a
+  /// ruler (the simulator is the ruler); without one, home (a track feature).
+  double zero_m = 0.0;
+};
+
+/// Home of a calibration without a ruler (sensor 0's first whole positive
+/// half-wave, the mean of its rising and falling mid-level crossings) located on
+/// the simulator's own noiseless sensor 0 near where the calibration says it is.
+inline double home_in_sim_frame(const core::MotorConfig& hardware, const sim::SimConfig& simcfg,
+                                const core::SelfCalibrationReport& rep) {
+  sim::SimSource sim(hardware, simcfg);
+  const double pitch = hardware.magnet_pitch_m;
+  double lo = 1e9, hi = -1e9;
+  for (double x = -pitch; x <= hardware.travel_m + pitch; x += pitch / 400.0) {
+    const double v = sim.hall_voltage_noiseless(0, x);
+    lo = std::min(lo, v), hi = std::max(hi, v);
+  }
+  const double mid = 0.5 * (lo + hi);
+  auto crossing = [&](double near, bool rising) {
+    const double step = pitch / 4000.0;
+    double best = std::nan(""), best_d = 1e9;
+    for (double x = near - 0.25 * pitch; x < near + 0.25 * pitch; x += step) {
+      const double a = sim.hall_voltage_noiseless(0, x) - mid, b = sim.hall_voltage_noiseless(0, x + step) - mid;
+      if ((a < 0) == (b < 0) || (a < 0) != rising) continue;
+      double l = x, h = x + step;
+      for (int k = 0; k < 40; ++k) {
+        const double m = 0.5 * (l + h);
+        ((sim.hall_voltage_noiseless(0, m) - mid < 0) == (a < 0) ? l : h) = m;
+      }
+      const double c = 0.5 * (l + h);
+      if (std::abs(c - near) < best_d) best_d = std::abs(c - near), best = c;
+    }
+    return best;
+  };
+  const double rising = crossing(rep.home_from_sweep_start_m + rep.home_rising_m, true);
+  const double falling = crossing(rep.home_from_sweep_start_m + rep.home_falling_m, false);
+  return 0.5 * (rising + falling);
+}
+
+/// The calibration run a commissioning engineer would record on this motor.
+inline sim::CalibrationRunConfig population_calibration_run() {
+  sim::CalibrationRunConfig run;
+  run.sweep_speed_mps = 0.05;
+  return run;
+}
+
+inline bool record_population_calibration(const sim::PopulationMotor& p, std::vector<core::ReferenceSegment>& segments,
+                                          std::string& error) {
+  return sim::record_calibration_run(p.hardware, p.sim, population_calibration_run(), segments, error);
+}
+
+/// Calibrates from a recorded calibration run (the reference column is blanked
+/// for the ruler-less calibration, which is given the Hall delay as the hardware's
+/// design would give it).
+inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor& p,
+                                                     std::vector<core::ReferenceSegment> segments, bool with_ruler) {
+  CalibrationOutcome o;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (with_ruler) {
+    core::IdentificationReport rep;
+    o.ok = core::identify_with_reference(p.datasheet, segments, {}, o.cal, rep, o.error);
+    o.good = o.ok && rep.good;
+    o.problems = rep.problems;
+  } else {
+    for (auto& s : segments) s.reference_m.assign(s.reference_m.size(), std::nan(""));
+    core::SelfCalibrationConfig cfg;
+    cfg.hall_delay_s = p.sim.imperfections.hall_delay_s;
+    core::SelfCalibrationReport rep;
+    o.ok = core::identify_without_reference(p.datasheet, segments, cfg, o.cal, rep, o.error);
+    o.good = o.ok && rep.identification.good;
+    o.problems = rep.identification.problems;
+    if (o.ok) o.zero_m = home_in_sim_frame(p.hardware, p.sim, rep);
+  }
+  o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return o;
+}
+
+struct FaultProbe {
+  bool inject = false;
+  int sensor = 0;
+  double at_s = 0.0;  ///< a dead sensor (stuck at its zero-field output) from then on
+};
+
+struct RunResult {
+  bool ok = false;
+  std::string error;
+  core::EstimateErrors err;     ///< over the window, in the calibration's frame
+  std::uint64_t samples = 0;
+  std::uint64_t valid = 0;      ///< VALID samples in the window
+  std::uint32_t flagged = 0;    ///< Hall sensors ever judged faulty (whole run)
+  double detect_s = -1.0;       ///< fault probe: time from injection to the sensor's flag; < 0: never
+  bool probe_flagged_before = false;  ///< fault probe: the sensor was flagged before it failed
+  double window_s = 0.0;
+  double valid_fraction() const { return samples ? static_cast<double>(valid) / samples : 0.0; }
+};
+
+/// Runs one scenario under one temperature condition with noise seed `noise_seed`.
+inline RunResult run_population_scenario(const sim::PopulationMotor& p, const CalibrationOutcome& c,
+                                         const PopScenario& sc, Condition cond, std::uint64_t noise_seed,
+                                         const FaultProbe& probe = {}) {
+  RunResult r;
+  sim::SimConfig cfg = p.sim;
+  cfg.realtime = false;
+  cfg.noise_seed = noise_seed;
+  cfg.profile = sc.profile;
+  // A short motor cannot hold the full motion: slow it down until it fits.
+  for (int i = 0; i < 30 && !sim::MotionProfile::create(cfg.profile, p.hardware.travel_m); ++i) {
+    cfg.profile.max_velocity_mps *= 0.85;
+    cfg.profile.velocity_mps *= 0.85;
+    cfg.profile.acceleration_mps2 *= 0.85;
+  }
+  {
+    sim::SimSource probe_src(p.hardware, cfg);
+    if (!probe_src.ok()) {
+      r.error = probe_src.last_error();
+      return r;
+    }
+    const double t1 = sc.until_steady_end ? std::min(20.0, probe_src.profile().steady_duration_s()) : sc.t1_s;
+    r.window_s = t1 - sc.t0_s;
+    cfg.duration_s = t1 + 0.5 / p.hardware.sample_rate_hz;
+  }
+  const double t0 = sc.t0_s, t1 = sc.t0_s + r.window_s;
+  switch (cond) {
+    case Condition::as_calibrated: break;
+    case Condition::ramp_plus_10k:
+      // Warming at 10 K per minute, the window ending 10 K above the calibration:
+      // the estimator starts on a motor already warmer than at calibration.
+      cfg.temperature.profile = sim::TemperatureConfig::Profile::ramp;
+      cfg.temperature.delta_k = 10.0;
+      cfg.temperature.start_s = 0.0;
+      cfg.temperature.duration_s = 60.0;
+      cfg.temperature.offset_k = 10.0 - 10.0 * t1 / 60.0;
+      break;
+    case Condition::step_minus_10k:
+      // At calibration temperature at the start, 10 K colder at once from a tenth
+      // into the window (harder than any real motor's thermal mass allows).
+      cfg.temperature.profile = sim::TemperatureConfig::Profile::step;
+      cfg.temperature.delta_k = -10.0;
+      cfg.temperature.start_s = t0 + 0.1 * (t1 - t0);
+      break;
+  }
+  if (probe.inject) {
+    cfg.fault_count = 1;
+    cfg.faults[0].kind = sim::FaultConfig::Kind::hall_stuck_mid;
+    cfg.faults[0].sensor = probe.sensor;
+    cfg.faults[0].start_s = probe.at_s;
+  }
+  sim::SimSource src(p.hardware, cfg);
+  if (!src.ok()) {
+    r.error = src.last_error();
+    return r;
+  }
+  core::PipelineConfig pc;
+  pc.motor = p.datasheet;
+  pc.sensors = c.cal.model;
+  pc.calibrated = true;
+  pc.start_position_known = true;
+  pc.start_position_m = cfg.profile.start_m - c.zero_m;
+  core::AxisPipeline pipeline(pc, c.cal.table);
+  core::RawSample s;
+  const std::uint32_t probe_bit = probe.inject ? 1u << probe.sensor : 0u;
+  while (src.read(s) == drivers::ReadStatus::ok) {
+    const double t = static_cast<double>(s.t_ns) * 1e-9;
+    const auto& e = pipeline.step(s);
+    r.flagged |= e.hall_faulty_mask & ~probe_bit;
+    if (probe.inject && t < probe.at_s && (e.hall_faulty_mask & probe_bit)) r.probe_flagged_before = true;
+    if (probe.inject && r.detect_s < 0.0 && t >= probe.at_s && (e.hall_faulty_mask & probe_bit))
+      r.detect_s = t - probe.at_s;
+    if (t < t0 || t > t1) continue;
+    const auto& tr = *src.truth();
+    const bool valid = (e.status & core::status::kValid) != 0;
+    r.err.add(e.position_m - (tr.position_m - c.zero_m), e.position_std_m, e.velocity_mps - tr.velocity_mps,
+              e.velocity_std_mps, valid);
+    ++r.samples;
+    if (valid) ++r.valid;
+  }
+  r.ok = r.samples > 0;
+  if (!r.ok) r.error = "no sample in the window";
+  return r;
+}
+
+}  // namespace ve::bench
