@@ -66,6 +66,7 @@ int record_command(const RecordOptions& options) {
   replay::RawLogWriter::Columns cols;
   cols.hall_count = axis->motor.hall.count;
   cols.accel_base = s.accel_base_valid;
+  cols.temperature = s.temperature_valid;
   cols.reference = source->reference_position(reference);
   cols.truth = source->truth() != nullptr;
   char rate[32];

@@ -111,6 +111,10 @@ int sensor_node_command(const SensorNodeOptions& options) {
   sim::SimConfig cfg = axis->driver.sim;
   cfg.realtime = true;
   cfg.duration_s = options.duration_s;
+  // A layout with a temperature signal: the node has a temperature sensor, so the
+  // simulator reports one (its own noise stream: the Hall and accelerometer values
+  // do not change).
+  if (layout.temperature.present) cfg.temperature.report = true;
   sim::SimSource sim(axis->motor, cfg);
   if (!sim.ok()) {
     std::fprintf(stderr, "sensor-node: %s\n", sim.last_error().c_str());

@@ -1095,7 +1095,8 @@ class MachineLoader {
                 {"socketcan", DriverConfig::Kind::socketcan}});
     // ---- socketcan driver (issue 6) ----
     if (drv.kind == DriverConfig::Kind::socketcan) {
-      for (const char* k : {"noise_seed", "profile", "imperfections", "faults", "realtime"}) d.reject(k, "only used with type: sim");
+      for (const char* k : {"noise_seed", "profile", "imperfections", "temperature", "faults", "realtime"})
+        d.reject(k, "only used with type: sim");
       d.reject("log", "only used with type: replay");
       read_socketcan(d, drv.socketcan);
       return;
@@ -1104,7 +1105,7 @@ class MachineLoader {
     // ---- end socketcan ----
     if (drv.kind == DriverConfig::Kind::replay) {
       const std::string why = "only used with type: sim";
-      for (const char* k : {"noise_seed", "profile", "imperfections", "faults"}) d.reject(k, why);
+      for (const char* k : {"noise_seed", "profile", "imperfections", "temperature", "faults"}) d.reject(k, why);
       d.get("realtime", drv.replay_realtime);
       const Value log = d.required("log");
       if (log.present()) referenced_file(log, drv.replay_path);
@@ -1138,6 +1139,39 @@ class MachineLoader {
       im.get("frame_vibration_mps2", c.frame_vibration_mps2, non_negative());
       im.get("frame_vibration_hz", c.frame_vibration_hz, positive());
       im.get("frame_accelerometer", c.frame_accelerometer);
+    }
+    read_temperature(d.map("temperature"), s.temperature);
+  }
+
+  /// The sim driver's `temperature:` block (sim::TemperatureConfig).
+  static void read_temperature(Map t, sim::TemperatureConfig& c) {
+    using P = sim::TemperatureConfig::Profile;
+    t.get_enum("profile", c.profile,
+               {{"constant", P::constant}, {"step", P::step}, {"ramp", P::ramp}, {"warmup", P::warmup}});
+    const double max_rise = sim::kMaxTemperatureRiseK, max_tc = sim::kMaxTemperatureCoefficientPerK;
+    const bool delta_ok = t.get("delta_k", c.delta_k, schema::in_range(-max_rise, max_rise));
+    const bool offset_ok = t.get("offset_k", c.offset_k, schema::in_range(-max_rise, max_rise));
+    t.get("start_s", c.start_s, non_negative());
+    const bool duration_ok = t.get("duration_s", c.duration_s, non_negative());
+    t.get("magnet_remanence_per_k", c.magnet_remanence_per_k, schema::in_range(-max_tc, max_tc));
+    t.get("hall_gain_tc_per_k", c.hall_gain_tc_per_k, schema::in_range(-max_tc, max_tc));
+    t.get("hall_gain_tc_std_per_k", c.hall_gain_tc_std_per_k,
+          schema::in_range(0.0, sim::kMaxTemperatureCoefficientStdPerK));
+    t.get("hall_offset_tc_std_v_per_k", c.hall_offset_tc_std_v_per_k,
+          schema::in_range(0.0, sim::kMaxHallOffsetDriftStdVPerK));
+    t.get("reference_c", c.reference_c, schema::in_range(-60.0, 200.0));
+    t.get("report", c.report);
+    t.get("report_noise_k", c.report_noise_k, non_negative());
+    t.get("report_resolution_k", c.report_resolution_k, non_negative());
+    // Cross-checks, reported at the value (or at the block when it is a default).
+    if ((delta_ok || offset_ok) && std::abs(c.delta_k) + std::abs(c.offset_k) > max_rise)
+      t.value(delta_ok ? "delta_k" : "offset_k")
+          .error("the temperature rise reaches " + format_number(std::abs(c.delta_k) + std::abs(c.offset_k)) +
+                 " K: |offset_k| + |delta_k| must be <= " + format_number(max_rise));
+    if ((c.profile == P::ramp || c.profile == P::warmup) && !(c.duration_s > 0.0) && (duration_ok || !t.has("duration_s"))) {
+      const Value v = t.value("duration_s");
+      v.error(std::string("duration_s") + (v.present() ? " " : " (default) ") + format_number(c.duration_s) +
+              " must be > 0 for profile " + (c.profile == P::ramp ? "ramp (time to reach delta_k)" : "warmup (time constant)"));
     }
   }
 

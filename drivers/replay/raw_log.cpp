@@ -392,7 +392,7 @@ bool RawLogReader::parse_header(const char* text, std::size_t len) {
   const std::size_t errors_before = error_count_;
 
   // Where each known column was first seen (1-based column; 0 = absent).
-  int col_t = 0, col_accel = 0, col_base = 0, col_ref = 0;
+  int col_t = 0, col_accel = 0, col_base = 0, col_temp = 0, col_ref = 0;
   int col_true[3] = {0, 0, 0};
   int col_hall[core::kMaxHalls] = {};
 
@@ -413,6 +413,8 @@ bool RawLogReader::parse_header(const char* text, std::size_t len) {
       c.role = Role::accel, seen = &col_accel;
     } else if (name == "accel_base_mps2") {
       c.role = Role::accel_base, seen = &col_base;
+    } else if (name == "temperature_c") {
+      c.role = Role::temperature, seen = &col_temp;
     } else if (name == "ref_position_m") {
       c.role = Role::ref, seen = &col_ref;
     } else if (name == kTrueNames[0]) {
@@ -492,6 +494,7 @@ bool RawLogReader::parse_header(const char* text, std::size_t len) {
                   std::to_string(line) + ") has " + std::to_string(meta_.hall_count) + " hall columns");
   }
   meta_.has_accel_base = col_base != 0;
+  meta_.has_temperature = col_temp != 0;
   meta_.has_reference = col_ref != 0;
   meta_.has_truth = n_true == 3;
   return error_count_ == errors_before;
@@ -527,6 +530,8 @@ bool RawLogReader::parse_row(const char* text, std::size_t len) {
   s.accel_valid = false;
   s.accel_base_mps2 = 0.0;
   s.accel_base_valid = false;
+  s.temperature_c = 0.0;
+  s.temperature_valid = false;
   double truth[3] = {0.0, 0.0, 0.0};
   int truth_filled = 0;
   const char* first_empty_truth = nullptr;
@@ -586,6 +591,10 @@ bool RawLogReader::parse_row(const char* text, std::size_t len) {
           case Role::accel_base:
             s.accel_base_mps2 = x;
             s.accel_base_valid = true;
+            break;
+          case Role::temperature:
+            s.temperature_c = x;
+            s.temperature_valid = true;
             break;
           case Role::ref:
             ref = x;
@@ -736,6 +745,7 @@ bool RawLogWriter::open(const std::string& path, const Columns& cols,
   for (int i = 0; i < cols.hall_count; ++i) text += ",hall_" + std::to_string(i) + "_v";
   text += ",accel_mps2";
   if (cols.accel_base) text += ",accel_base_mps2";
+  if (cols.temperature) text += ",temperature_c";
   if (cols.reference) text += ",ref_position_m";
   if (cols.truth) text += ",true_position_m,true_velocity_mps,true_acceleration_mps2";
   text += "\n";
@@ -792,6 +802,7 @@ bool RawLogWriter::write(const core::RawSample& s, const core::Truth* truth, con
     if (hall_on(i)) finite = finite && std::isfinite(s.hall_v[static_cast<std::size_t>(i)]);
   if (s.accel_valid) finite = finite && std::isfinite(s.accel_mps2);
   if (cols_.accel_base && s.accel_base_valid) finite = finite && std::isfinite(s.accel_base_mps2);
+  if (cols_.temperature && s.temperature_valid) finite = finite && std::isfinite(s.temperature_c);
   if (reference_position_m != nullptr) finite = finite && std::isfinite(*reference_position_m);
   if (truth != nullptr)
     finite = finite && std::isfinite(truth->position_m) && std::isfinite(truth->velocity_mps) &&
@@ -811,6 +822,10 @@ bool RawLogWriter::write(const core::RawSample& s, const core::Truth* truth, con
   if (cols_.accel_base) {
     buf_ += ',';
     if (s.accel_base_valid) ok = ok && append_fixed(buf_, s.accel_base_mps2, 6);
+  }
+  if (cols_.temperature) {
+    buf_ += ',';
+    if (s.temperature_valid) ok = ok && append_fixed(buf_, s.temperature_c, 6);
   }
   if (cols_.reference) {
     buf_ += ',';

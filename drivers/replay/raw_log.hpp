@@ -34,6 +34,7 @@
 //                              outputs as read [V]
 //      accel_mps2              required: accelerometer on the moving part [m/s^2]
 //      accel_base_mps2         optional: accelerometer on the frame [m/s^2]
+//      temperature_c           optional: temperature the sensor node reports [deg C]
 //      ref_position_m          optional: reference ruler [m]
 //      true_position_m, true_velocity_mps, true_acceleration_mps2
 //                              optional, all three or none: ground truth
@@ -43,9 +44,10 @@
 //    are dropped). NaN and infinities are errors. An empty cell means that
 //    sensor's sample is missing: an empty hall cell clears its bit in
 //    hall_valid_mask, an empty accel cell makes accel_valid (accel_base_valid)
-//    false, an empty ref_position_m cell means no reference for that row, and
-//    truth is present for a row only when its three cells are all filled (some
-//    but not all filled is an error). t_s may not be empty. Blank lines and
+//    false, an empty temperature_c cell makes temperature_valid false, an
+//    empty ref_position_m cell means no reference for that row, and truth is
+//    present for a row only when its three cells are all filled (some but not
+//    all filled is an error). t_s may not be empty. Blank lines and
 //    further '#' lines after the header are skipped.
 //
 // Errors carry FILE:LINE:COL: FIELD: MESSAGE, like the configuration loader.
@@ -99,6 +101,7 @@ struct RawLogMeta {
   std::map<std::string, std::string> values;  ///< every `# key=value` line
   int hall_count = 0;                         ///< hall columns in the header
   bool has_accel_base = false;
+  bool has_temperature = false;
   bool has_reference = false;
   bool has_truth = false;
   double sample_rate_hz = 0.0;  ///< from metadata; 0 when not given
@@ -146,7 +149,7 @@ class RawLogReader {
   std::uint64_t rows() const { return rows_; }
 
  private:
-  enum class Role : std::uint8_t { ignored, t, hall, accel, accel_base, ref, true_pos, true_vel, true_acc };
+  enum class Role : std::uint8_t { ignored, t, hall, accel, accel_base, temperature, ref, true_pos, true_vel, true_acc };
   struct Column {
     Role role = Role::ignored;
     int hall = 0;  // role == hall
@@ -200,6 +203,7 @@ class RawLogWriter {
     bool accel_base = false;
     bool reference = false;
     bool truth = false;
+    bool temperature = false;  ///< temperature_c (last: positional initialisers stay valid)
   };
 
   RawLogWriter() = default;
@@ -215,9 +219,9 @@ class RawLogWriter {
   bool open(const std::string& path, const Columns& cols,
             const std::vector<std::pair<std::string, std::string>>& metadata, std::string& error);
 
-  /// One row. t_s is s.t_ns printed exactly (9 decimals); volts and accelerations
-  /// with 6 decimals, positions and velocity with 9; a hall i >= s.hall_count, a
-  /// cleared valid bit, accel(_base)_valid false, a null truth or reference give
+  /// One row. t_s is s.t_ns printed exactly (9 decimals); volts, accelerations and
+  /// temperature with 6 decimals, positions and velocity with 9; a hall i >= s.hall_count,
+  /// a cleared valid bit, accel(_base)_valid or temperature_valid false, a null truth or reference give
   /// empty cells. truth / reference are ignored when the columns were not asked
   /// for. False (nothing written; error() says why) when the writer is not open,
   /// s.hall_count exceeds the columns, t_ns does not increase, a value to write is

@@ -173,6 +173,7 @@ LayoutProblem check_layout(const CanLayout& l) {
     }
   }
   if (LayoutProblem p = place(l.node_timestamp, "signals.node_timestamp", 1); !p.message.empty()) return p;
+  if (LayoutProblem p = place(l.temperature, "signals.temperature", 1); !p.message.empty()) return p;
   return {};
 }
 
@@ -254,6 +255,11 @@ DecodeStatus decode(const CanLayout& l, std::uint32_t id, bool extended, bool fd
     out.node_time_us = to_physical(
         l.node_timestamp, get_bits(data, l.node_timestamp.start_bit, l.node_timestamp.length, l.node_timestamp.order));
   const std::uint32_t hall_mask = (1u << l.hall_count) - 1u;
+  const bool has_temperature = l.temperature.present;
+  const double temperature_c =
+      has_temperature
+          ? to_physical(l.temperature, get_bits(data, l.temperature.start_bit, l.temperature.length, l.temperature.order))
+          : 0.0;
   for (int k = 0; k < l.samples_per_frame; ++k) {
     core::RawSample& s = out.samples[static_cast<std::size_t>(k)];
     const int shift = k * l.sample_stride_bits;
@@ -275,6 +281,8 @@ DecodeStatus decode(const CanLayout& l, std::uint32_t id, bool extended, bool fd
       s.accel_base_mps2 = 0.0;
       s.accel_base_valid = false;
     }
+    s.temperature_c = temperature_c;
+    s.temperature_valid = has_temperature;
   }
   return DecodeStatus::ok;
 }
@@ -306,6 +314,11 @@ int encode(const CanLayout& l, const core::RawSample* samples, std::uint64_t seq
     if (low < 0.0) low += wrap;
     const std::uint64_t raw = static_cast<std::uint64_t>(low);
     set_bits(d, t.start_bit, t.length, t.order, raw);
+  }
+  if (l.temperature.present) {
+    const SignalSpec& t = l.temperature;
+    set_bits(d, t.start_bit, t.length, t.order, to_raw(t, samples[0].temperature_c, clamped));
+    clamped_count += clamped;
   }
   for (int k = 0; k < l.samples_per_frame; ++k) {
     const core::RawSample& s = samples[k];

@@ -14,7 +14,8 @@
 // accelerometers) describe sample 0; sample k's copy sits k * sample_stride_bits later
 // (in the signal's own bit stream: little-endian bit numbers for little-endian signals,
 // MSB-first positions for big-endian ones). Samples are in time order, oldest first.
-// The sequence counter and node timestamp are per frame and refer to sample 0.
+// The sequence counter, node timestamp and temperature are per frame and refer to
+// sample 0 (the decoder gives the frame's temperature to each of its samples).
 // The sequence counter may live in the low bits of the CAN id (sequence.in_can_id):
 // start_bit/length then number the bits of the identifier.
 #pragma once
@@ -65,6 +66,7 @@ struct CanLayout {
   SignalSpec accel_base;            ///< m/s^2, optional frame accelerometer
   SignalSpec sequence;              ///< counter (scale 1, offset 0), optional but recommended
   SignalSpec node_timestamp;        ///< microseconds of sample 0 on the node's clock, optional
+  SignalSpec temperature;           ///< deg C, optional, per frame: RawSample::temperature_c
 
   /// Identifier bits that select this layout (all but the sequence bits in the id).
   std::uint32_t id_mask() const;
@@ -120,7 +122,8 @@ inline DecodeStatus decode(const CanLayout& layout, const FrameBytes& f, Decoded
 /// the wrap) and node time `node_time_us` of sample 0. Out-of-range values are clamped
 /// to the signal's raw range (saturation; NaN goes to the minimum); returns how many
 /// signal values were clamped. The node timestamp keeps its low bits (it wraps).
-/// hall_valid_mask / accel_valid are not encoded: the values are sent as given.
+/// hall_valid_mask / accel_valid / temperature_valid are not encoded: the values are
+/// sent as given (the temperature is sample 0's).
 /// Allocation-free.
 int encode(const CanLayout& layout, const core::RawSample* samples, std::uint64_t sequence, double node_time_us,
            FrameBytes& out);

@@ -16,6 +16,7 @@
 //   signals:                           # hall_0 .. hall_{N-1}, accel required; the rest optional
 //     hall_0: {start_bit: 0, length: 12, byte_order: little_endian, signed: false, scale: 0.0012210012, offset: 0}
 //     accel: {...}  accel_base: {...}  node_timestamp: {...}   # node_timestamp scales to microseconds
+//     temperature: {...}               # deg C, once per frame (sample 0's), e.g. 12 bit signed x 0.0625
 //     sequence: {start_bit: 0, length: 8, in_can_id: true}
 #pragma once
 
@@ -101,7 +102,8 @@ struct Reader {
       remember("signals." + key, sig, key);
     }
     const std::pair<const char*, SignalSpec*> others[] = {
-        {"accel", &l.accel}, {"accel_base", &l.accel_base}, {"sequence", &l.sequence}, {"node_timestamp", &l.node_timestamp}};
+        {"accel", &l.accel},       {"accel_base", &l.accel_base},         {"sequence", &l.sequence},
+        {"node_timestamp", &l.node_timestamp}, {"temperature", &l.temperature}};
     for (const auto& [key, spec] : others) {
       if (sig.has(key)) signal(sig.map(key), *spec, std::string("signals.") + key, spec == &l.sequence);
       else sig.value(key);

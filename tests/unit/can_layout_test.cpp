@@ -171,6 +171,73 @@ TEST(CanLayout, BigEndianSignedBatchedLayout) {
   EXPECT_EQ(decode(l, 0x18FF0010, false, false, f.data.data(), 8, d), DecodeStatus::wrong_id);  // standard id
 }
 
+TEST(CanLayout, TemperatureRoundTrip) {
+  // CAN FD, 2 samples per frame, a per-frame temperature (12 bit signed, 1/16 K) after
+  // the counter, as a layout file describes it.
+  const std::string text =
+      "layout: fd-temp\n"
+      "can_id: 0x120\n"
+      "fd: true\n"
+      "frame_length: 12\n"
+      "samples_per_frame: 2\n"
+      "sample_stride_bits: 28\n"
+      "sample_rate_hz: 4000\n"
+      "hall_count: 1\n"
+      "signals:\n"
+      "  hall_0: {start_bit: 0, length: 12, scale: 0.0012210012210012210}\n"
+      "  accel: {start_bit: 12, length: 16, signed: true, scale: 0.005}\n"
+      "  sequence: {start_bit: 56, length: 8}\n"
+      "  temperature: {start_bit: 64, length: 12, signed: true, scale: 0.0625}\n";
+  CanLayout l;
+  std::vector<ve::config::ConfigError> errors;
+  ASSERT_TRUE(load_can_layout_text("t.yaml", text, l, errors)) << ve::config::to_string(errors);
+  ASSERT_TRUE(l.temperature.present);
+  EXPECT_EQ(l.temperature.start_bit, 64);
+  RawSample in[2] = {sample(1.0, 0, 0, 0, 2.0), sample(2.0, 0, 0, 0, -3.0)};
+  in[0].hall_count = in[1].hall_count = 1;
+  in[0].temperature_c = 37.3125;  // the frame carries sample 0's
+  in[0].temperature_valid = in[1].temperature_valid = true;
+  in[1].temperature_c = 99.0;
+  FrameBytes f;
+  EXPECT_EQ(encode(l, in, 7, 0.0, f), 0);
+  EXPECT_EQ(f.data[8] | (f.data[9] & 0x0F) << 8, 597);  // 37.3125 / 0.0625
+  DecodedFrame d;
+  ASSERT_EQ(decode(l, f, d), DecodeStatus::ok);
+  ASSERT_EQ(d.count, 2);
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_TRUE(d.samples[k].temperature_valid) << k;
+    EXPECT_EQ(d.samples[k].temperature_c, 37.3125) << k;
+  }
+  // Below freezing (sign extension), and beyond the signal's range (saturation).
+  in[0].temperature_c = -12.5;
+  EXPECT_EQ(encode(l, in, 8, 0.0, f), 0);
+  ASSERT_EQ(decode(l, f, d), DecodeStatus::ok);
+  EXPECT_EQ(d.samples[1].temperature_c, -12.5);
+  in[0].temperature_c = 200.0;
+  EXPECT_EQ(encode(l, in, 9, 0.0, f), 1);
+  ASSERT_EQ(decode(l, f, d), DecodeStatus::ok);
+  EXPECT_EQ(d.samples[0].temperature_c, 2047 * 0.0625);
+
+  // Checked like every signal: it may not overlap another one.
+  CanLayout bad = l;
+  bad.temperature.start_bit = 50;
+  EXPECT_EQ(check_layout(bad).where, "signals.temperature");
+  // The shipped layouts carry none: their samples have no temperature.
+  for (const char* file : {"config/can/classic-4hall.yaml", "config/can/fd-4hall-x8.yaml"}) {
+    const CanLayout shipped = load(file);
+    EXPECT_FALSE(shipped.temperature.present) << file;
+    RawSample batch[kMaxSamplesPerFrame];
+    for (int k = 0; k < shipped.samples_per_frame; ++k) {
+      batch[k] = sample(1.0, 1.0, 1.0, 1.0, 0.0);
+      batch[k].temperature_c = 30.0;
+      batch[k].temperature_valid = true;
+    }
+    ASSERT_EQ(encode(shipped, batch, 1, 0.0, f), 0) << file;
+    ASSERT_EQ(decode(shipped, f, d), DecodeStatus::ok) << file;
+    EXPECT_FALSE(d.samples[0].temperature_valid) << file;
+  }
+}
+
 TEST(CanLayout, SignExtensionAndSaturation) {
   CanLayout l;
   l.can_id = 0x10;

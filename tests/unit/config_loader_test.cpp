@@ -519,6 +519,124 @@ TEST(ConfigLoader, BadSimImperfectionsPointAtTheValue) {
                "standstill | constant_velocity | constant_acceleration | multisine | shuttle | point_to_point");
 }
 
+/// One axis on m.yaml, up to its `driver:` key (4 lines); the driver block follows.
+const std::string kSimAxisDriver = "axes:\n  - name: x\n    motor: m.yaml\n    driver:\n";
+
+TEST(ConfigLoader, SimTemperatureLoads) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              kSimAxisDriver +
+                              "      temperature:\n"
+                              "        profile: warmup\n"
+                              "        delta_k: -12.5\n"
+                              "        start_s: 2\n"
+                              "        duration_s: 300\n"
+                              "        offset_k: 10\n"
+                              "        magnet_remanence_per_k: -0.0011\n"
+                              "        hall_gain_tc_per_k: -0.0009\n"
+                              "        hall_gain_tc_std_per_k: 0.0004\n"
+                              "        hall_offset_tc_std_v_per_k: 0.0002\n"
+                              "        reference_c: 22\n"
+                              "        report: true\n"
+                              "        report_noise_k: 0.05\n"
+                              "        report_resolution_k: 0.125\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  const sim::TemperatureConfig& t = r.config.axes[0].driver.sim.temperature;
+  EXPECT_EQ(t.profile, sim::TemperatureConfig::Profile::warmup);
+  EXPECT_EQ(t.delta_k, -12.5);
+  EXPECT_EQ(t.start_s, 2.0);
+  EXPECT_EQ(t.duration_s, 300.0);
+  EXPECT_EQ(t.offset_k, 10.0);
+  EXPECT_EQ(t.magnet_remanence_per_k, -0.0011);
+  EXPECT_EQ(t.hall_gain_tc_per_k, -0.0009);
+  EXPECT_EQ(t.hall_gain_tc_std_per_k, 0.0004);
+  EXPECT_EQ(t.hall_offset_tc_std_v_per_k, 0.0002);
+  EXPECT_EQ(t.reference_c, 22.0);
+  EXPECT_TRUE(t.report);
+  EXPECT_EQ(t.report_noise_k, 0.05);
+  EXPECT_EQ(t.report_resolution_k, 0.125);
+
+  // Omitted: no temperature change, datasheet-like coefficients, no report.
+  const auto plain = dir.write("plain.yaml", "axes: [{name: x, motor: m.yaml}]\n");
+  const LoadResult d = load_machine_file(plain);
+  ASSERT_TRUE(d.ok()) << to_string(d.errors);
+  const sim::TemperatureConfig& dt = d.config.axes[0].driver.sim.temperature;
+  EXPECT_EQ(dt.profile, sim::TemperatureConfig::Profile::constant);
+  EXPECT_EQ(dt.delta_k, 0.0);
+  EXPECT_EQ(dt.offset_k, 0.0);
+  EXPECT_EQ(dt.magnet_remanence_per_k, -0.0012);
+  EXPECT_EQ(dt.reference_c, 25.0);
+  EXPECT_FALSE(dt.report);
+
+  // The block documented (commented out) in sim-realistic.yaml loads as written.
+  std::ifstream shipped(std::string(VE_SOURCE_DIR) + "/config/machines/sim-realistic.yaml");
+  std::string line, block;
+  bool in_block = false;
+  while (std::getline(shipped, line)) {
+    if (line.rfind("      # temperature:", 0) == 0) in_block = true;
+    else if (in_block && line.rfind("      #   ", 0) != 0) break;
+    if (in_block) block += "      " + line.substr(8) + "\n";  // drop the "# "
+  }
+  ASSERT_FALSE(block.empty());
+  const auto doc = dir.write("doc.yaml", kSimAxisDriver + block);
+  const LoadResult e = load_machine_file(doc);
+  ASSERT_TRUE(e.ok()) << to_string(e.errors) << block;
+  const sim::TemperatureConfig& et = e.config.axes[0].driver.sim.temperature;
+  EXPECT_EQ(et.profile, sim::TemperatureConfig::Profile::warmup);
+  EXPECT_EQ(et.delta_k, 10.0);
+  EXPECT_EQ(et.duration_s, 600.0);
+  EXPECT_EQ(et.hall_gain_tc_std_per_k, sim::TemperatureConfig{}.hall_gain_tc_std_per_k);  // documents the defaults
+  EXPECT_EQ(et.hall_offset_tc_std_v_per_k, sim::TemperatureConfig{}.hall_offset_tc_std_v_per_k);
+  EXPECT_EQ(et.magnet_remanence_per_k, sim::TemperatureConfig{}.magnet_remanence_per_k);
+  EXPECT_EQ(et.report_resolution_k, sim::TemperatureConfig{}.report_resolution_k);
+}
+
+TEST(ConfigLoader, BadSimTemperaturePointsAtTheValue) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              kSimAxisDriver +                                    // 1-4
+                              "      temperature:\n"                             // 5
+                              "        profile: linear\n"                        // 6
+                              "        delta_k: 150\n"                           // 7
+                              "        start_s: -1\n"                            // 8
+                              "        hall_gain_tc_std_per_k: 0.01\n"           // 9
+                              "        magnet_remanence_per_k: -0.012\n"         // 10
+                              "        report_resolution_k: -0.0625\n"           // 11
+                              "        report: 1\n"                              // 12
+                              "        offset_c: 10\n");                         // 13
+  const LoadResult r = load_machine_file(path);
+  EXPECT_EQ(r.errors.size(), 8u) << to_string(r.errors);
+  const std::string t = "axes[0].driver.temperature.";
+  expect_error(r, path, 6, 18, t + "profile", "'linear' is not one of constant | step | ramp | warmup");
+  expect_error(r, path, 7, 18, t + "delta_k", "must be in [-100, 100], got 150");
+  expect_error(r, path, 8, 18, t + "start_s", "must be >= 0, got -1");
+  expect_error(r, path, 9, 33, t + "hall_gain_tc_std_per_k", "must be in [0, 0.001], got 0.01");
+  expect_error(r, path, 10, 33, t + "magnet_remanence_per_k", "must be in [-0.003, 0.003], got -0.012");
+  expect_error(r, path, 11, 30, t + "report_resolution_k", "must be >= 0, got -0.0625");
+  expect_error(r, path, 12, 17, t + "report", "expected true or false, got '1'");
+  expect_error(r, path, 13, 9, t + "offset_c", "did you mean 'offset_k'?");
+
+  // Cross-checks: the whole rise, and a ramp without a duration.
+  const auto cross = dir.write("cross.yaml",
+                               kSimAxisDriver + "      temperature: {profile: ramp, delta_k: 60, offset_k: 50}\n");  // 5
+  const LoadResult c = load_machine_file(cross);
+  EXPECT_EQ(c.errors.size(), 2u) << to_string(c.errors);
+  expect_error(c, cross, 5, 45, t + "delta_k", "the temperature rise reaches 110 K: |offset_k| + |delta_k| must be <= 100");
+  expect_error(c, cross, 5, 20, t + "duration_s", "duration_s (default) 0 must be > 0 for profile ramp");
+
+  // Only the simulator has a temperature model.
+  const auto replay = dir.write("replay.yaml",
+                                "axes:\n"                                                   // 1
+                                "  - name: x\n"                                             // 2
+                                "    motor: m.yaml\n"                                       // 3
+                                "    driver: {type: replay, log: r.csv, temperature: {}}\n");  // 4
+  dir.write("r.csv", "t_s,hall_0_v,accel_mps2\n");
+  expect_error(load_machine_file(replay), replay, 4, 40, "axes[0].driver.temperature", "only used with type: sim");
+}
+
 std::string read_file(const std::string& path) {
   std::ifstream in(path);
   std::stringstream ss;

@@ -414,12 +414,12 @@ TEST(RawLog, MissingCellsAndOptionalColumns) {
 
 TEST(RawLog, UnknownColumnIsAWarningAndStillReads) {
   TempDir dir;
-  const std::string p = dir.write("u.csv", kV1 + "t_s,hall_0_v,temperature_c,accel_mps2\n"
+  const std::string p = dir.write("u.csv", kV1 + "t_s,hall_0_v,humidity_pct,accel_mps2\n"
                                                  "0.1,1.0,hot,2.0\n");
   RawLogReader r;
   ASSERT_TRUE(r.open(p)) << all(r);
   ASSERT_EQ(r.warnings().size(), 1u);
-  EXPECT_EQ(r.warnings()[0], p + ":2:14: temperature_c: unknown column; ignored");
+  EXPECT_EQ(r.warnings()[0], p + ":2:14: humidity_pct: unknown column; ignored");
   RawLogRow row;
   ASSERT_EQ(r.next(row), Next::row) << all(r);
   EXPECT_EQ(row.sample.hall_v[0], 1.0);
@@ -731,6 +731,115 @@ TEST(Replay, SameSampleSequenceAsWritten) {
   EXPECT_EQ(src.read(s), ReadStatus::end_of_stream);
   EXPECT_EQ(src.describe(), "replay(" + path + ", 1000 rows read)");
   EXPECT_TRUE(src.last_error().empty());
+}
+
+TEST(RawLog, TemperatureColumnRoundTrip) {
+  TempDir dir;
+  const std::string path = dir.path("temp.csv");
+  RawLogWriter::Columns cols;
+  cols.hall_count = 2;
+  cols.accel_base = true;
+  cols.temperature = true;
+  RawLogWriter w;
+  std::string error;
+  ASSERT_TRUE(w.open(path, cols, {{"sample_rate_hz", "1000"}}, error)) << error;
+  std::vector<RawSample> written;
+  for (int n = 0; n < 50; ++n) {
+    RawSample s = sample(1000000LL * (n + 1), 2);
+    s.accel_base_valid = true;
+    s.temperature_valid = n % 7 != 3;  // some rows without a reading: empty cells
+    s.temperature_c = 25.0 + 0.0625 * n - 3.0 * (n % 2);
+    ASSERT_TRUE(w.write(s, nullptr, nullptr)) << w.error();
+    written.push_back(s);
+  }
+  RawSample bad = sample(1000000LL * 60, 2);
+  bad.temperature_valid = true;
+  bad.temperature_c = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(w.write(bad, nullptr, nullptr));  // the reader would not read it
+  ASSERT_TRUE(w.close(error)) << error;
+
+  {
+    std::ifstream in(path);
+    std::string line;
+    while (std::getline(in, line) && line[0] == '#') {
+    }
+    EXPECT_EQ(line, "t_s,hall_0_v,hall_1_v,accel_mps2,accel_base_mps2,temperature_c");
+    ASSERT_TRUE(std::getline(in, line));
+    EXPECT_NE(line.find(",25.000000"), std::string::npos) << line;
+  }
+  RawLogReader r;
+  ASSERT_TRUE(r.open(path)) << all(r);
+  EXPECT_TRUE(r.warnings().empty());
+  EXPECT_TRUE(r.meta().has_temperature);
+  RawLogRow row;
+  for (const RawSample& s : written) {
+    ASSERT_EQ(r.next(row), Next::row) << all(r);
+    EXPECT_EQ(row.sample.temperature_valid, s.temperature_valid) << s.t_ns;
+    EXPECT_EQ(row.sample.temperature_c, s.temperature_valid ? s.temperature_c : 0.0) << s.t_ns;
+    EXPECT_TRUE(row.sample.accel_base_valid);
+  }
+  EXPECT_EQ(r.next(row), Next::end);
+  EXPECT_TRUE(r.errors().empty()) << all(r);
+
+  // A log without the column: no temperature, and the column may come in any order.
+  const std::string plain = dir.write("plain.csv", kV1 +
+                                                   "t_s,hall_0_v,accel_mps2\n"
+                                                   "0.001,1,0\n");
+  RawLogReader p;
+  ASSERT_TRUE(p.open(plain)) << all(p);
+  EXPECT_FALSE(p.meta().has_temperature);
+  ASSERT_EQ(p.next(row), Next::row) << all(p);
+  EXPECT_FALSE(row.sample.temperature_valid);
+  const std::string first = dir.write("first.csv", kV1 +
+                                                   "temperature_c,t_s,hall_0_v,accel_mps2\n"
+                                                   " 31.5 ,0.001,1,0\n"
+                                                   "x,0.002,1,0\n");
+  RawLogReader f;
+  ASSERT_TRUE(f.open(first)) << all(f);
+  ASSERT_EQ(f.next(row), Next::row) << all(f);
+  EXPECT_TRUE(row.sample.temperature_valid);
+  EXPECT_EQ(row.sample.temperature_c, 31.5);
+  EXPECT_EQ(f.next(row), Next::error);
+  EXPECT_EQ(f.last_error().field, "temperature_c");
+  EXPECT_EQ(f.last_error().column, 1);
+}
+
+TEST(Replay, ReportedTemperatureComesBack) {
+  TempDir dir;
+  const std::string path = dir.path("sim-temp.csv");
+  ve::core::MotorConfig motor;
+  ve::sim::SimConfig cfg;
+  cfg.realtime = false;
+  cfg.temperature.report = true;
+  cfg.temperature.offset_k = 7.5;
+  ve::sim::SimSource sim(motor, cfg);
+  ASSERT_TRUE(sim.ok()) << sim.last_error();
+  RawSample s;
+  std::vector<RawSample> written;
+  RawLogWriter w;
+  std::string error;
+  ASSERT_EQ(sim.read(s), ReadStatus::ok);
+  RawLogWriter::Columns cols;
+  cols.hall_count = motor.hall.count;
+  cols.temperature = s.temperature_valid;  // as `record` decides
+  ASSERT_TRUE(cols.temperature);
+  ASSERT_TRUE(w.open(path, cols, {{"sample_rate_hz", "4000"}}, error)) << error;
+  for (int n = 0; n < 200; ++n) {
+    if (n > 0) {
+      ASSERT_EQ(sim.read(s), ReadStatus::ok);
+    }
+    ASSERT_TRUE(w.write(s, nullptr, nullptr)) << w.error();
+    written.push_back(s);
+  }
+  ASSERT_TRUE(w.close(error)) << error;
+  ReplaySource src(path, false);
+  ASSERT_TRUE(src.ok()) << src.last_error();
+  for (const RawSample& x : written) {
+    ASSERT_EQ(src.read(s), ReadStatus::ok) << src.last_error();
+    EXPECT_TRUE(s.temperature_valid);
+    EXPECT_EQ(s.temperature_c, x.temperature_c);  // multiples of 1/16 K print exactly
+    EXPECT_NEAR(s.temperature_c, 32.5, 0.6);
+  }
 }
 
 TEST(Replay, TruthAndReferenceFollowTheRow) {

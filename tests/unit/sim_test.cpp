@@ -918,13 +918,17 @@ TEST(SimSource, FrameVibrationVisibleThroughTheNoise) {
   EXPECT_LT(std::abs(cross / n / (fm.resid_std * fb.resid_std)), 5.0 / std::sqrt(n));
 }
 
+/// SimSource::check() of the default motor and a standstill configuration whose `part`
+/// (imperfections, temperature) `set` changed.
+template <class Part, class Set>
+std::string check_with(Part SimConfig::*part, Set set) {
+  SimConfig cfg = offline(Kind::standstill);
+  set(cfg.*part);
+  return SimSource::check(MotorConfig{}, cfg);
+}
+
 TEST(SimSource, InvalidImperfectionsAreReported) {
-  MotorConfig motor;
-  auto bad = [&](auto set) {
-    SimConfig cfg = offline(Kind::standstill);
-    set(cfg.imperfections);
-    return SimSource::check(motor, cfg);
-  };
+  auto bad = [](auto set) { return check_with(&SimConfig::imperfections, set); };
   using IC = ve::sim::ImperfectionConfig;
   EXPECT_NE(bad([](IC& i) { i.field_third_harmonic = 0.5; }).find("field_third_harmonic"), std::string::npos);
   EXPECT_NE(bad([](IC& i) { i.coil_field_v_per_mps2 = std::nan(""); }).find("coil_field"), std::string::npos);
@@ -1224,12 +1228,7 @@ TEST(SimTemperature, ReportedTemperatureIsNoisyAndQuantised) {
 }
 
 TEST(SimTemperature, InvalidTemperatureConfigIsReported) {
-  MotorConfig motor;
-  auto bad = [&](auto set) {
-    SimConfig cfg = offline(Kind::standstill);
-    set(cfg.temperature);
-    return SimSource::check(motor, cfg);
-  };
+  auto bad = [](auto set) { return check_with(&SimConfig::temperature, set); };
   using TC = ve::sim::TemperatureConfig;
   EXPECT_NE(bad([](TC& t) { t.delta_k = 150.0; }).find("delta_k"), std::string::npos);
   EXPECT_NE(bad([](TC& t) { t.offset_k = std::nan(""); }).find("offset_k"), std::string::npos);
