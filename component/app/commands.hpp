@@ -70,11 +70,20 @@ int record_command(const RecordOptions& options);
 struct EvaluateOptions {
   std::string config;
   std::string axis;
-  std::string log;             ///< raw log v1 with truth columns
+  std::string log;             ///< raw log v1: scored against its truth, else its ruler, else checked for consistency
   std::string calibration;     ///< overrides the axis' calibration file
   std::string estimates;       ///< optional CSV of the estimates per sample
   bool json = false;
   double home_m = -1.0;        ///< overrides homing.position_m when >= 0
+  /// Against a ruler (ref_position_m, no truth): what is subtracted from the ruler's
+  /// reading: "auto" (its mean difference from the estimate), "none" or metres.
+  std::string ruler_offset = "auto";
+  /// The ruler's resolution [um]; 0 = estimated as the smallest step between readings.
+  double ruler_resolution_um = 0.0;
+  /// Half-width of the Savitzky-Golay window that differentiates the ruler [samples]:
+  /// 10 (21 samples, 5.25 ms at 4 kHz) balances a 1 um ruler's noise against the
+  /// curvature a quadratic fit misses in the simulator's motion.
+  int ruler_half_window = 10;
 };
 int evaluate_command(const EvaluateOptions& options);
 

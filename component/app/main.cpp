@@ -76,14 +76,26 @@ int main(int argc, char** argv) {
   rec_cmd->add_flag("--fast", rec.fast, "Do not pace a simulated or replayed source in real time");
 
   ve::app::EvaluateOptions ev;
-  auto* ev_cmd = app.add_subcommand("evaluate", "Run the estimator over a raw log and compare with its truth");
+  auto* ev_cmd = app.add_subcommand("evaluate",
+                                    "Run the estimator over a raw log and score it against its truth or its reference "
+                                    "ruler, or check its consistency");
   ev_cmd->add_option("--config,-c", ev.config, "Machine file (default: the built-in simulator machine)");
   ev_cmd->add_option("--axis,-a", ev.axis, "Axis name (default: the first)");
-  ev_cmd->add_option("--log,-l", ev.log, "Raw log v1 with truth columns")->required();
+  ev_cmd->add_option("--log,-l", ev.log, "Raw log v1 (with truth columns, a ref_position_m column, or neither)")
+      ->required();
   ev_cmd->add_option("--calibration", ev.calibration, "Calibration file (default: the axis' own)");
   ev_cmd->add_option("--estimates", ev.estimates, "Write the estimates per sample to this CSV");
   ev_cmd->add_flag("--json", ev.json, "Print the statistics as JSON");
   ev_cmd->add_option("--home", ev.home_m, "Start-up position hint [m] (default: the axis' homing.position_m)");
+  ev_cmd->add_option("--ruler-offset", ev.ruler_offset,
+                     "Without truth, against ref_position_m: auto (remove the mean difference), none, or metres to "
+                     "subtract from the ruler")
+      ->capture_default_str();
+  ev_cmd->add_option("--ruler-resolution-um", ev.ruler_resolution_um,
+                     "The ruler's resolution [um] (default: the smallest step between its readings)");
+  ev_cmd->add_option("--ruler-half-window", ev.ruler_half_window,
+                     "Half-width of the Savitzky-Golay window that differentiates the ruler [samples]")
+      ->capture_default_str();
 
   // ---- sensor-node: SocketCAN sensor node emulator (issue 6) ----
   ve::app::SensorNodeOptions node;
