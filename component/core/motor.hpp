@@ -108,10 +108,14 @@ struct FilterConfig {
   /// the sensor that explains the disagreement (a spike or a failing sensor).
   double sensor_chi2_limit = 25.0;
   /// Per-sensor fault score: an exponential average (this time constant, in
-  /// samples) of "was the outlier"; above sensor_fault_on the sensor is faulty and
-  /// left out until the process restarts.
+  /// samples) of "was the outlier" (only where the outlier is unambiguous); above
+  /// sensor_fault_on the sensor is faulty and left out until it is consistent again.
   double sensor_fault_time_constant_samples = 20.0;
   double sensor_fault_on = 0.3;
+  /// A faulty sensor comes back when its readings agree with the estimate (within
+  /// this many sigmas) for this long, over at least half a magnet period of motion.
+  double sensor_readmit_s = 0.25;
+  double sensor_readmit_sigma = 4.0;
   /// Fewest healthy Hall sensors for a VALID position; 0: all but one.
   int min_healthy_halls = 0;
   /// The accelerometer is dead when it repeats exactly the same reading this many
@@ -122,6 +126,25 @@ struct FilterConfig {
   /// Without the accelerometer (failed or absent) the filter runs on the Halls
   /// alone: white jerk of this size drives the acceleration, and the jerk state rests.
   double hall_only_jerk_std_mps3 = 500.0;
+
+  // --- Hall adaptation to slow change (temperature, ageing; hall_adaptation.hpp) ---
+  /// Track each Hall's gain and offset while running.
+  bool hall_adaptation = true;
+  /// How fast they may drift: random walks [1/sqrt(s)], [V/sqrt(s)].
+  double hall_gain_random_walk_per_sqrt_s = 2e-4;
+  double hall_offset_random_walk_v_per_sqrt_s = 0.05e-3;
+  /// Their uncertainty at start-up (the motor need not be at its calibration temperature).
+  double hall_gain_initial_std = 0.002;
+  double hall_offset_initial_std_v = 0.0005;
+  /// A CUSUM of a sensor's normalised residual beyond this re-opens its covariance
+  /// by these (a change faster than the random walk: a step of temperature). 0: off.
+  double hall_drift_cusum = 40.0;
+  double hall_gain_reopen_std = 0.02;
+  double hall_offset_reopen_std_v = 0.005;
+  /// Largest gain and offset change followed; beyond it the sensor has changed more
+  /// than temperature explains and is judged by the health check instead.
+  double hall_gain_limit = 0.1;
+  double hall_offset_limit_v = 0.1;
 
   // --- steady motion ---
   /// While the acceleration holds still, the filter runs a calm model: the jerk

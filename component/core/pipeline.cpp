@@ -14,6 +14,13 @@ namespace {
 // not fit for a position or velocity loop.
 constexpr double kValidPositionStdM = 50e-6;
 constexpr double kValidVelocityStdMps = 10e-3;
+// The Hall adaptation learns only while the filter is settled: its prior position
+// within this, and the fix within this many sigmas of it.
+constexpr double kAdaptPriorStdM = 2e-6;
+constexpr double kAdaptInnovationSigma = 4.0;
+// A sensor is blamed for a disagreement only if removing it leaves a fix within
+// this many sigmas of the prediction, and removing any other does not.
+constexpr double kBlameAgreementSigma = 4.0;
 }  // namespace
 
 AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
@@ -21,39 +28,51 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
       hall_(config.motor, std::move(table)),
       kf_(config.motor.sample_period_s(), config.motor.filter, config.sensors),
       homing_(config.motor.magnet_pitch_m, config.signature),
+      adapt_(config.motor, config.motor.sample_period_s()),
       period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))) {
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
   const int n = std::min(config.motor.hall.count, kMaxHalls);
   all_halls_mask_ = (1u << n) - 1u;
   min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
+  readmit_samples_ = std::max(1, static_cast<int>(std::lround(config.motor.filter.sensor_readmit_s * config.motor.sample_rate_hz)));
 }
 
 HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, double common_mode_v,
-                                   std::uint32_t use_mask, std::uint32_t& outlier_mask) const {
+                                   std::uint32_t use_mask, std::uint32_t& outlier_mask, bool& ambiguous) const {
   outlier_mask = 0;
+  ambiguous = false;
   const double limit = cfg_.motor.filter.sensor_chi2_limit;
   HallFix fix = hall_.solve(sample, guess_m, common_mode_v, use_mask);
   if (fix.ok && fix.chi2 <= limit) return fix;
   // The sensors disagree (or one reads a rail where the others place it in the
   // middle): find the one sensor whose removal leaves a consistent fix, and among
-  // such fixes take the one closest to the prediction.
+  // such fixes take the one closest to the prediction. When several removals
+  // would do (always so with two sensors out of saturation), the fix still takes
+  // the closest, but the sensor is blamed only if the prediction singles it out.
   const double var_pred = kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos);
   double best_score = std::numeric_limits<double>::infinity();
   HallFix best;
+  int candidates = 0, agreeing = 0;
   for (int i = 0; i < kMaxHalls; ++i) {
     const std::uint32_t bit = 1u << i;
     if (!(use_mask & sample.hall_valid_mask & bit)) continue;
     const HallFix f = hall_.solve(sample, guess_m, common_mode_v, use_mask & ~bit);
     if (!f.ok || f.chi2 > limit) continue;
+    ++candidates;
     const double d = f.position_m - guess_m;
     const double score = d * d / (var_pred + f.variance_m2);
+    if (score <= kBlameAgreementSigma * kBlameAgreementSigma) ++agreeing;
     if (score < best_score) {
       best_score = score;
       best = f;
       outlier_mask = bit;
     }
   }
+  // Unambiguous: one removal makes the rest consistent, or several do but only
+  // one of them agrees with the prediction (a drift of every sensor leaves them
+  // all far from it).
+  ambiguous = candidates > 1 && !(agreeing == 1 && best_score <= kBlameAgreementSigma * kBlameAgreementSigma);
   return outlier_mask ? best : fix;
 }
 
@@ -68,7 +87,39 @@ void AxisPipeline::update_hall_health(std::uint32_t used_mask, std::uint32_t out
     if (!(used_mask & bit)) continue;
     double& score = fault_score_[i];
     score += alpha * (((outlier_mask & bit) ? 1.0 : 0.0) - score);
-    if (score > f.sensor_fault_on) faulty_mask_ |= bit;
+    // A gain or offset beyond anything slow drift explains is a fault as well.
+    if (score > f.sensor_fault_on || adapt_.beyond_limits(i)) {
+      faulty_mask_ |= bit;
+      readmit_streak_[i] = 0;
+    }
+  }
+}
+
+void AxisPipeline::readmission_step(const RawSample& raw, double x_m, double common_mode_v) {
+  const auto& f = cfg_.motor.filter;
+  const double lo = cfg_.motor.adc.min_v + cfg_.motor.hall.saturation_margin_v;
+  const double hi = cfg_.motor.adc.max_v - cfg_.motor.hall.saturation_margin_v;
+  for (int i = 0; i < kMaxHalls; ++i) {
+    const std::uint32_t bit = 1u << i;
+    if (!(faulty_mask_ & bit)) continue;
+    const double y = raw.hall_v[static_cast<std::size_t>(i)];
+    if (!(raw.hall_valid_mask & bit) || !(y > lo && y < hi)) continue;  // a rail reading says nothing
+    double std_v = 0.0;
+    const double r = adapt_.residual(raw, hall_.table(), i, x_m, common_mode_v, std_v);
+    if (std::abs(r) > f.sensor_readmit_sigma * std_v || adapt_.beyond_limits(i)) {
+      readmit_streak_[i] = 0;
+      continue;
+    }
+    if (readmit_streak_[i]++ == 0) readmit_lo_m_[i] = readmit_hi_m_[i] = x_m;
+    readmit_lo_m_[i] = std::min(readmit_lo_m_[i], x_m);
+    readmit_hi_m_[i] = std::max(readmit_hi_m_[i], x_m);
+    if (readmit_streak_[i] >= readmit_samples_ &&
+        readmit_hi_m_[i] - readmit_lo_m_[i] >= 0.5 * cfg_.motor.magnet_pitch_m) {
+      faulty_mask_ &= ~bit;
+      fault_score_[i] = 0.0;
+      readmit_streak_[i] = 0;
+      ++readmitted_;
+    }
   }
 }
 
@@ -96,7 +147,8 @@ bool AxisPipeline::acquire(const RawSample& sample) {
     hi = lo + p;
     homed = false;
   }
-  const HallFix fix = hall_.acquire(sample, lo, hi, 0.0, all_halls_mask_ & ~faulty_mask_);
+  adapt_.correct(sample, 0.0, corrected_);
+  const HallFix fix = hall_.acquire(corrected_, lo, hi, 0.0, all_halls_mask_ & ~faulty_mask_);
   if (!fix.ok) return false;
   kf_.reset(fix.position_m, fix.variance_m2, accel_reading(sample), accel_usable(sample));
   homed_ = homed;
@@ -104,6 +156,7 @@ bool AxisPipeline::acquire(const RawSample& sample) {
   // configured or kept position) on the first motion.
   if (cfg_.signature_homing && (!homed_ || !started_)) homing_.start(hall_, fix.position_m);
   started_ = true;
+  settled_samples_ = 0;
   rejected_in_row_ = 0;
   without_fix_in_row_ = 0;
   return true;
@@ -192,6 +245,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     applied = true;
   } else {
     for (int i = 0; i < steps; ++i) kf_.predict();
+    ++settled_samples_;
 
     // The Halls saw the track at t - hall_delay; start the search there. The coil
     // field adds the same offset to every sensor, in proportion to the force.
@@ -199,15 +253,25 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     const double guess = xp(FusionFilter::kPos) - cfg_.sensors.hall_delay_s * xp(FusionFilter::kVel);
     const double common_mode = cfg_.sensors.coil_field_v_per_mps2 * xp(FusionFilter::kAcc);
     std::uint32_t outlier = 0;
+    bool ambiguous = false;
     const std::uint32_t use = all_halls_mask_ & ~faulty_mask_;
-    const HallFix fix = solve_robust(sample, guess, common_mode, use, outlier);
+    // The readings as the calibration would have seen them (gains and offsets drift).
+    adapt_.correct(sample, common_mode, corrected_);
+    const HallFix fix = solve_robust(corrected_, guess, common_mode, use, outlier, ambiguous);
     out_.hall_sensors_used = fix.sensors_used;
     out_.hall_outlier_mask = outlier;
     // While the signature search runs, the filter follows another period's table
     // than the one the carriage is in: its sensors disagree by the two periods'
-    // tolerances, which says nothing about their health.
-    if (fix.ok && !homing_in_progress()) update_hall_health(use & sample.hall_valid_mask, outlier);
-    if (fix.ok && cfg_.signature_homing) signature_step(sample, guess, common_mode, use);
+    // tolerances, which says nothing about their health (nor about their drift).
+    const bool judge = fix.ok && !homing_in_progress();
+    if (judge && !ambiguous) update_hall_health(use & sample.hall_valid_mask, outlier);
+    // Learn gains and offsets against the prediction (made before this fix, so the
+    // fix's own noise is not fed back) once the filter has settled, and only from
+    // fixes the prediction agrees with: a transient of the filter is not drift.
+    const double prior_pos_std = std::sqrt(kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos));
+    const bool learn = judge && rejected_in_row_ == 0 && settled_samples_ >= readmit_samples_ &&
+                       prior_pos_std < kAdaptPriorStdM;
+    if (fix.ok && cfg_.signature_homing) signature_step(corrected_, guess, common_mode, use);
     if (fix.ok) {
       without_fix_in_row_ = 0;
       out_.hall_position_m = fix.position_m;
@@ -215,6 +279,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       if (fix.out_of_table) status |= status::kOutOfTravel;
       const double gate = cfg_.motor.filter.gate_sigma;
       out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix.variance_m2, gate, applied);
+      if (learn && applied && std::abs(out_.hall_innovation_sigma) < kAdaptInnovationSigma) {
+        adapt_.update(sample, hall_.table(), guess, common_mode, use & ~outlier, faulty_mask_);
+        // ... and see whether a faulty sensor agrees again.
+        if (faulty_mask_) readmission_step(sample, guess, common_mode);
+      }
       if (applied) {
         rejected_in_row_ = 0;
       } else if (++rejected_in_row_ >= cfg_.motor.filter.hall_rejections_before_reset) {

@@ -5,6 +5,7 @@
 
 #include <cstdint>
 
+#include "hall_adaptation.hpp"
 #include "hall_array.hpp"
 #include "fusion_filter.hpp"
 #include "motor.hpp"
@@ -69,6 +70,9 @@ class AxisPipeline {
   const EncoderEstimate& last() const { return out_; }
   const HallArray& hall_array() const { return hall_; }
   const FusionFilter& filter() const { return kf_; }
+  const HallAdaptation& adaptation() const { return adapt_; }
+  /// Sensors judged faulty and later found consistent again, re-admitted.
+  std::uint64_t sensors_readmitted() const { return readmitted_; }
   bool initialised() const { return initialised_; }
   /// Signature homing: searching, and the motion it has seen so far [m].
   bool homing_in_progress() const { return homing_.state() == SignatureHoming::State::collecting; }
@@ -101,9 +105,22 @@ class AxisPipeline {
   int without_fix_in_row_ = 0;
   double accel_var_;
   // Sensor health.
+  /// `ambiguous`: the fix disagreed, but more than one sensor's removal would make
+  /// it consistent (two sensors out of saturation always are), so no sensor can be
+  /// blamed for it (a common drift looks like that).
   HallFix solve_robust(const RawSample& sample, double guess_m, double common_mode_v, std::uint32_t use_mask,
-                       std::uint32_t& outlier_mask) const;
+                       std::uint32_t& outlier_mask, bool& ambiguous) const;
   void update_hall_health(std::uint32_t used_mask, std::uint32_t outlier_mask);
+  /// Faulty sensors consistent with the estimate again over enough motion come back.
+  void readmission_step(const RawSample& raw, double x_m, double common_mode_v);
+  HallAdaptation adapt_;
+  RawSample corrected_;  ///< this sample's readings mapped back to the calibration's conditions
+  int readmit_streak_[kMaxHalls] = {};
+  double readmit_lo_m_[kMaxHalls] = {};
+  double readmit_hi_m_[kMaxHalls] = {};
+  int readmit_samples_ = 1;
+  int settled_samples_ = 0;  ///< samples since the filter last (re)acquired
+  std::uint64_t readmitted_ = 0;
   double fault_score_[kMaxHalls] = {};
   std::uint32_t faulty_mask_ = 0;
   std::uint32_t all_halls_mask_ = 0;

@@ -1,0 +1,125 @@
+#include "hall_adaptation.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace ve::core {
+
+HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
+    : enabled_(motor.filter.hall_adaptation),
+      sensors_(std::min(motor.hall.count, kMaxHalls)),
+      mid_v_(motor.hall.offset_v),
+      lo_v_(motor.adc.min_v + motor.hall.saturation_margin_v),
+      hi_v_(motor.adc.max_v - motor.hall.saturation_margin_v) {
+  const auto& f = motor.filter;
+  const double lsb = motor.adc.lsb_v();
+  noise_var_v2_ = motor.hall.noise_v * motor.hall.noise_v + lsb * lsb / 12.0;
+  q_gain_ = f.hall_gain_random_walk_per_sqrt_s * f.hall_gain_random_walk_per_sqrt_s * ts_s;
+  q_offset_ = f.hall_offset_random_walk_v_per_sqrt_s * f.hall_offset_random_walk_v_per_sqrt_s * ts_s;
+  gain_limit_ = f.hall_gain_limit;
+  offset_limit_v_ = f.hall_offset_limit_v;
+  reopen_threshold_ = f.hall_drift_cusum;
+  reopen_gain_var_ = f.hall_gain_reopen_std * f.hall_gain_reopen_std;
+  reopen_offset_var_ = f.hall_offset_reopen_std_v * f.hall_offset_reopen_std_v;
+  for (int i = 0; i < kMaxHalls; ++i) {
+    p_gg_[static_cast<std::size_t>(i)] = f.hall_gain_initial_std * f.hall_gain_initial_std;
+    p_dd_[static_cast<std::size_t>(i)] = f.hall_offset_initial_std_v * f.hall_offset_initial_std_v;
+  }
+}
+
+void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSample& out) const {
+  out = in;
+  if (!enabled_) return;
+  for (int i = 0; i < sensors_; ++i) {
+    const double y = in.hall_v[static_cast<std::size_t>(i)];
+    if (!(y > lo_v_ && y < hi_v_)) continue;  // a rail reading stays a rail reading
+    const auto k = static_cast<std::size_t>(i);
+    // y = c + m + delta + (1 + gamma) (T - m)  =>  T = m + (y - c - m - delta) / (1 + gamma)
+    out.hall_v[k] = common_mode_v + mid_v_ + (y - common_mode_v - mid_v_ - delta_[k]) / (1.0 + gamma_[k]);
+  }
+}
+
+double HallAdaptation::residual(const RawSample& raw, const HallTable& table, int i, double x_m, double common_mode_v,
+                                double& std_v) const {
+  const auto k = static_cast<std::size_t>(i);
+  double t, slope;
+  table.evaluate(i, x_m, t, slope);
+  const double u = t - mid_v_;
+  const double predicted = common_mode_v + mid_v_ + delta_[k] + (1.0 + gamma_[k]) * u;
+  std_v = std::sqrt(noise_var_v2_ + u * u * p_gg_[k] + 2.0 * u * p_gd_[k] + p_dd_[k]);
+  return raw.hall_v[k] - predicted;
+}
+
+double HallAdaptation::position_std_m(int i, double u_v, double slope_v_per_m) const {
+  const auto k = static_cast<std::size_t>(i);
+  const double var_v = std::max(0.0, u_v * u_v * p_gg_[k] + 2.0 * u_v * p_gd_[k] + p_dd_[k]);
+  return std::abs(slope_v_per_m) > 0.0 ? std::sqrt(var_v) / std::abs(slope_v_per_m) : 0.0;
+}
+
+void HallAdaptation::update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
+                            std::uint32_t mask, std::uint32_t learn_only_mask) {
+  if (!enabled_) return;
+  // Residuals of every usable sensor at the predicted position.
+  std::array<double, kMaxHalls> r{}, u{}, sl{};
+  std::uint32_t usable = 0;
+  double s_sr = 0.0, s_ss = 0.0;
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    // Random walk: the parameters may have moved since the last sample.
+    p_gg_[k] += q_gain_;
+    p_dd_[k] += q_offset_;
+    if (!(((mask | learn_only_mask) & raw.hall_valid_mask) >> i & 1u)) continue;
+    const double y = raw.hall_v[k];
+    if (!(y > lo_v_ && y < hi_v_)) continue;
+    double t, slope;
+    table.evaluate(i, x_m, t, slope);
+    u[k] = t - mid_v_;
+    sl[k] = slope;
+    r[k] = y - (common_mode_v + mid_v_ + delta_[k] + (1.0 + gamma_[k]) * u[k]);
+    usable |= 1u << i;
+    if (learn_only_mask >> i & 1u) continue;  // learns, but says nothing about the others
+    s_sr += slope * r[k];
+    s_ss += slope * slope;
+  }
+  for (int i = 0; i < sensors_; ++i) {
+    if (!(usable >> i & 1u)) continue;
+    const auto k = static_cast<std::size_t>(i);
+    // What a position error explains is the position's business, not the
+    // sensor's: take out the shift the other sensors see (leave-one-out, so the
+    // sensor's own noise and drift are not in it). One sensor alone teaches nothing.
+    const bool own = !(learn_only_mask >> i & 1u);
+    const double others_ss = own ? s_ss - sl[k] * sl[k] : s_ss;
+    if (!(others_ss > 1e-12 * (s_ss + 1e-300))) continue;
+    const double shift_m = (own ? s_sr - sl[k] * r[k] : s_sr) / others_ss;
+    const double res = r[k] - sl[k] * shift_m;
+    const double rv = noise_var_v2_ * (1.0 + sl[k] * sl[k] / others_ss);
+    // Innovation variance with H = [u, 1].
+    const double ph_g = p_gg_[k] * u[k] + p_gd_[k];
+    const double ph_d = p_gd_[k] * u[k] + p_dd_[k];
+    const double s = u[k] * ph_g + ph_d + rv;
+    // A change faster than the random walk: the residual keeps one sign. Re-open.
+    Cusum& c = cusum_[k];
+    const double z = res / std::sqrt(s);
+    c.up = std::max(0.0, c.up + z - 1.0);
+    c.down = std::max(0.0, c.down - z - 1.0);
+    if (reopen_threshold_ > 0.0 && (c.up > reopen_threshold_ || c.down > reopen_threshold_)) {
+      p_gg_[k] += reopen_gain_var_;
+      p_dd_[k] += reopen_offset_var_;
+      c = Cusum{};
+      ++reopenings_;
+      continue;  // the next sample learns with the wider covariance
+    }
+    const double kg = ph_g / s, kd = ph_d / s;
+    const double g = gamma_[k] + kg * res;
+    const double d = delta_[k] + kd * res;
+    p_gg_[k] = std::max(p_gg_[k] - kg * ph_g, 1e-14);
+    p_dd_[k] = std::max(p_dd_[k] - kd * ph_d, 1e-14);
+    const double bound = std::sqrt(p_gg_[k] * p_dd_[k]);
+    p_gd_[k] = std::clamp(p_gd_[k] - kg * ph_d, -bound, bound);
+    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
+    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
+    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
+  }
+}
+
+}  // namespace ve::core

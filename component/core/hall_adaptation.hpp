@@ -1,0 +1,89 @@
+// Online adaptation of the Hall sensors to slow change (temperature, ageing):
+// each sensor's gain about its zero-field output and its offset, tracked while
+// running from the redundancy of the array, without recalibration.
+//
+// Model: a sensor reads y_i = c + m_i + delta_i + (1 + gamma_i) (T_i(x) - m_i),
+// where T_i is its calibrated table, m_i its zero-field output (the motor file's
+// offset_v; an error in it is taken up by delta_i), c the coil field's common
+// mode, gamma_i the relative change of its gain times the magnets' field (the
+// remanence falls by about 0.12 %/K, a Hall's sensitivity by about 0.1 %/K) and
+// delta_i the change of its offset (a few mV over 10 K).
+//
+// Estimation: per sensor a two-state Kalman filter (gamma_i, delta_i as random
+// walks) on the residual of its reading against the table at the filter's
+// predicted position; the regressor T_i(x) - m_i changes sign over every magnet
+// period, so gain and offset separate as the carriage moves (at standstill they
+// are taken up together, which is what matters there). A CUSUM of each sensor's
+// normalised residual catches a change faster than the random walk allows and
+// re-opens that sensor's covariance, so the parameters follow within a few tens of
+// samples. Gains and offsets are bounded: a sensor that needs more than
+// any temperature explains (a dead sensor "needs" gamma = -1) is not followed
+// but reported (beyond_limits), and the pipeline's health check judges it.
+// Fixed size; nothing allocates per sample.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+#include "hall_table.hpp"
+#include "motor.hpp"
+#include "sample.hpp"
+
+namespace ve::core {
+
+class HallAdaptation {
+ public:
+  HallAdaptation(const MotorConfig& motor, double ts_s);
+
+  /// The readings corrected to the calibration's conditions: out = in with each
+  /// Hall reading mapped back through its gain and offset (rail readings, which
+  /// carry no position, are left as read).
+  void correct(const RawSample& in, double common_mode_v, RawSample& out) const;
+
+  /// Learns from one sample: `x_m` the position the Halls saw (the filter's
+  /// prediction at the Halls' instant); only sensors in `mask` (not this sample's
+  /// outlier) and out of saturation take part. What a position error would explain
+  /// (each sensor's slope times one shift) is taken out of the residuals first, so
+  /// an error of the prediction is not learnt as drift; at least two sensors out
+  /// of saturation are needed. Sensors in `learn_only_mask` (judged faulty) learn
+  /// from the others but take no part in what the others learn.
+  void update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v, std::uint32_t mask,
+              std::uint32_t learn_only_mask = 0);
+
+  /// Residual of sensor i's raw reading against the adapted model at x, and the
+  /// residual's standard deviation [V].
+  double residual(const RawSample& raw, const HallTable& table, int i, double x_m, double common_mode_v,
+                  double& std_v) const;
+
+  bool enabled() const { return enabled_; }
+  double gain(int i) const { return gamma_[static_cast<std::size_t>(i)]; }
+  double offset_v(int i) const { return delta_[static_cast<std::size_t>(i)]; }
+  /// The sensor's gain or offset ran into its bound: more change than slow drift explains.
+  bool beyond_limits(int i) const { return at_limit_[static_cast<std::size_t>(i)]; }
+  /// Times a sensor's parameters were re-opened by the CUSUM (a fast change).
+  std::uint64_t reopenings() const { return reopenings_; }
+  /// Standard deviation of the position error the parameters' uncertainty leaves
+  /// in a fix made by one sensor with slope `slope_v_per_m` at regressor u [m].
+  double position_std_m(int i, double u_v, double slope_v_per_m) const;
+
+ private:
+  struct Cusum {
+    double up = 0.0, down = 0.0;
+  };
+  bool enabled_;
+  int sensors_;
+  double mid_v_;
+  double lo_v_, hi_v_;
+  double noise_var_v2_;
+  double q_gain_, q_offset_;          ///< per-sample random-walk variances
+  double gain_limit_, offset_limit_v_;
+  double reopen_threshold_;
+  double reopen_gain_var_, reopen_offset_var_;
+  std::array<double, kMaxHalls> gamma_{}, delta_{};
+  std::array<double, kMaxHalls> p_gg_{}, p_gd_{}, p_dd_{};
+  std::array<Cusum, kMaxHalls> cusum_{};
+  std::array<bool, kMaxHalls> at_limit_{};
+  std::uint64_t reopenings_ = 0;
+};
+
+}  // namespace ve::core
