@@ -714,6 +714,25 @@ int calibrate_command(const CalibrateOptions& options) {
   }
   const auto parent = std::filesystem::path(out).parent_path();
   if (!parent.empty()) std::filesystem::create_directories(parent);
+  if (!report.good) {
+    // --force writes a poor result only if `run` and `evaluate` would load it:
+    // try it as they read it, from a scratch file beside the output.
+    const std::string probe = out + ".force-check.tmp";
+    std::string why;
+    if (!config::write_calibration_file_atomic(probe, cal, why)) {
+      why = "it cannot be written as a calibration file: " + why;
+    } else {
+      const auto loaded = config::load_calibration_file(probe, axis.motor);
+      if (!loaded.ok()) why = "run and evaluate would refuse it: " + config::to_string(loaded.errors);
+    }
+    std::error_code ignored;
+    std::filesystem::remove(probe, ignored);
+    if (!why.empty()) {
+      std::printf("%s", summary.c_str());
+      std::fprintf(stderr, "calibration NOT written, even with --force: %s\n", why.c_str());
+      return 1;
+    }
+  }
   if (!config::write_calibration_file_atomic(out, cal, error)) {
     std::fprintf(stderr, "cannot write %s: %s\n", out.c_str(), error.c_str());
     return 1;

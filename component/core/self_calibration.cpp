@@ -45,45 +45,12 @@ double differential_chi2(const HallTable& t, const RawSample& s, double common_m
   return sum;
 }
 
-/// Hall positions of one segment, tracked sample to sample. The first sample is
-/// placed by a search over [lo, hi]; among the few best candidates the one whose
-/// first samples (up to 0.5 s: the carriage moves over a few magnets' signatures)
-/// track with the smallest differential chi-square wins.
-void solve_positions(const HallArray& array, const std::vector<RawSample>& s, const std::vector<double>& common_mode,
-                     double lo, double hi, std::vector<double>& x) {
+/// Hall positions of one segment, tracked sample to sample from `start` (the
+/// first sample is solved near it; each later one near the extrapolation of the
+/// two before).
+void track_positions(const HallArray& array, const std::vector<RawSample>& s, const std::vector<double>& common_mode,
+                     double start, std::vector<double>& x) {
   x.assign(s.size(), 0.0);
-  if (s.empty()) return;
-  const HallTable& t = array.table();
-  const double pitch = array.pitch_m();
-  // Candidates: the best grid node per period of the search window.
-  std::vector<std::pair<double, double>> cand;  // cost, position
-  const int k0 = std::max(0, static_cast<int>(std::ceil((lo - t.start_m) / t.step_m)));
-  const int k1 = std::min(t.points - 1, static_cast<int>(std::floor((hi - t.start_m) / t.step_m)));
-  const int per_pitch = std::max(1, static_cast<int>(std::lround(pitch / t.step_m)));
-  for (int p0 = k0; p0 <= k1; p0 += per_pitch) {
-    double best = std::numeric_limits<double>::infinity();
-    int best_k = p0;
-    for (int k = p0; k < std::min(k1 + 1, p0 + per_pitch); ++k) {
-      const double cost = differential_chi2(t, s[0], common_mode[0], t.start_m + k * t.step_m);
-      if (cost < best) best = cost, best_k = k;
-    }
-    cand.emplace_back(best, t.start_m + best_k * t.step_m);
-  }
-  std::sort(cand.begin(), cand.end());
-  if (cand.size() > 16) cand.resize(16);
-  const std::size_t probe = std::min<std::size_t>(s.size(), 2000);
-  double best_score = std::numeric_limits<double>::infinity();
-  double start = cand.empty() ? lo : cand.front().second;
-  for (const auto& c : cand) {
-    double prev = c.second, prev2 = c.second, score = 0.0;
-    for (std::size_t i = 0; i < probe; ++i) {
-      const HallFix f = array.solve(s[i], 2.0 * prev - prev2, common_mode[i]);
-      score += f.sensors_used > 0 ? differential_chi2(t, s[i], common_mode[i], f.position_m) : 1e6;
-      prev2 = prev;
-      prev = f.position_m;
-    }
-    if (score < best_score) best_score = score, start = c.second;
-  }
   double prev = start, prev2 = start;
   for (std::size_t i = 0; i < s.size(); ++i) {
     const double guess = 2.0 * prev - prev2;
@@ -94,14 +61,53 @@ void solve_positions(const HallArray& array, const std::vector<RawSample>& s, co
   }
 }
 
+/// Where on the table a segment is: its relative trajectory `x_rel` (Hall
+/// positions tracked with the periodic nominal table, right to within a whole
+/// number of periods) is tried at every whole-period shift that keeps it on the
+/// table, and each trial is scored on the whole segment (a few thousand samples
+/// spread over it): the differential chi-square of the readings against the
+/// table along the trajectory. One sample cannot decide: where a single sensor
+/// is out of saturation its differential chi-square is zero at any position.
+/// Returns the start position of the best shift.
+double place_segment(const HallTable& t, const std::vector<RawSample>& s, const std::vector<double>& common_mode,
+                     const std::vector<double>& x_rel, double shift, double pitch) {
+  if (s.empty()) return shift;
+  const double lo = *std::min_element(x_rel.begin(), x_rel.end()) + shift;
+  const double hi = *std::max_element(x_rel.begin(), x_rel.end()) + shift;
+  const int k0 = static_cast<int>(std::ceil((t.start_m - lo) / pitch - 1e-9));
+  const int k1 = static_cast<int>(std::floor((t.end_m() - hi) / pitch + 1e-9));
+  const std::size_t stride = std::max<std::size_t>(1, s.size() / 4000);
+  double best = std::numeric_limits<double>::infinity();
+  int best_k = 0;
+  bool any = false;
+  for (int k = k0; k <= k1; ++k) {
+    double cost = 0.0;
+    for (std::size_t i = 0; i < s.size() && cost < best; i += stride)
+      cost += differential_chi2(t, s[i], common_mode[i], x_rel[i] + shift + k * pitch);
+    if (!any || cost < best) best = cost, best_k = k, any = true;
+  }
+  if (!any) {
+    // Longer than the table (should not happen): centre it.
+    best_k = static_cast<int>(std::lround((0.5 * (t.start_m + t.end_m()) - 0.5 * (lo + hi)) / pitch));
+  }
+  return x_rel[0] + shift + best_k * pitch;
+}
+
+/// Relative Hall positions of a segment: any period will do (the nominal table is periodic).
+void relative_positions(const HallArray& array, const std::vector<RawSample>& s, const std::vector<double>& common_mode,
+                        std::vector<double>& x) {
+  const HallFix f = array.acquire(s.front(), 0.0, array.pitch_m(), common_mode.front());
+  track_positions(array, s, common_mode, f.position_m, x);
+}
+
 /// The coil field seen in Hall positions solved with common mode c * a: the
 /// slope, against the acceleration, of the readings' mean residual about the
 /// table. Zero at the right c (the residual is linear in c).
 double coil_residual_slope(const MotorConfig& motor, const HallArray& array, const std::vector<RawSample>& s,
-                           const std::vector<double>& accel, double c, double min_accel, double lo, double hi) {
+                           const std::vector<double>& accel, double c, double min_accel, double start) {
   std::vector<double> cm(s.size()), x;
   for (std::size_t i = 0; i < s.size(); ++i) cm[i] = c * accel[i];
-  solve_positions(array, s, cm, lo, hi, x);
+  track_positions(array, s, cm, start, x);
   const double lo_v = motor.adc.min_v + motor.hall.saturation_margin_v;
   const double hi_v = motor.adc.max_v - motor.hall.saturation_margin_v;
   double sa = 0, sr = 0, saa = 0, sar = 0;
@@ -410,7 +416,10 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
                           : accel_given ? "from the accelerometer delay given"
                                         : "assumed 0 (not given)";
 
-  HallTable table = extended_nominal_table(motor, ic.points_per_pitch, 4);
+  // Relative positions start within the first period and may run a whole travel
+  // either way (the fast motion need not start at an end): margins of a travel.
+  HallTable table = extended_nominal_table(
+      motor, ic.points_per_pitch, static_cast<int>(std::ceil(motor.travel_m / motor.magnet_pitch_m)) + 4);
   double coil = 0.0;
   std::vector<std::vector<double>> accel(ng);  // the estimate's acceleration per sample (coil field)
   for (std::size_t g = 0; g < ng; ++g) accel[g].assign(work[g].samples.size(), 0.0);
@@ -424,10 +433,16 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   double accel_bias = std::numeric_limits<double>::quiet_NaN();
   std::vector<std::vector<char>> bridged(ng);  // positions made with the accelerometer (not fitted against it)
   double coil_found = std::numeric_limits<double>::quiet_NaN();
-  double best_residual_mv = std::numeric_limits<double>::infinity(), best_hall_delay = 0.0, best_join_m = 0.0;
-  double sweep_lo = 0.0, best_sweep_lo = 0.0;  // the lowest position of the sweep (from its start)
-  Calibration best_cal;
-  IdentificationReport best_idrep;
+  double sweep_lo = 0.0;       // the lowest position of the sweep (from its start)
+  double sweep_pass_lo = 0.0;  // the lowest position of its slow passes
+  std::vector<std::vector<double>> prev_xr(ng);  // the last iteration's estimate (convergence)
+  double change_m = std::numeric_limits<double>::infinity(), previous_scale = 1.0, hall_delay_used = hall_delay;
+  bool converged = false;
+  double previous_scale_change = 0.0;
+  // Each segment's relative positions from the first iteration (nominal table),
+  // and how far the working frame has moved from theirs since.
+  std::vector<std::vector<double>> x_rel(ng);
+  double frame_shift = 0.0;
   for (int it = 0; it < iterations; ++it) {
     const HallArray array(motor, table);
     rep.passes_forward = rep.passes_backward = 0;
@@ -440,28 +455,28 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       bridged[g].assign(s.size(), 0);
       std::vector<double> cm(s.size());
       for (std::size_t i = 0; i < s.size(); ++i) cm[i] = coil * accel[g][i];
-      // First iteration: any period will do (relative positions). Later: the whole table.
-      const double search_lo = it == 0 ? 0.0 : table.start_m;
-      const double search_hi = it == 0 ? motor.magnet_pitch_m : table.end_m();
       std::vector<double> x;
-      if (it > 0 && g != sweep_segment) {
-        // Fast motion: the coil field shifts the Hall positions themselves, so it
-        // is found here, as the value that leaves no residual in step with the
-        // acceleration (linear in it: one secant step from two trials).
-        const double c0 = coil, c1 = coil + 1e-3;
-        const double g0 = coil_residual_slope(motor, array, s, accel[g], c0, ic.dynamic_min_accel_mps2, search_lo, search_hi);
-        const double g1 = coil_residual_slope(motor, array, s, accel[g], c1, ic.dynamic_min_accel_mps2, search_lo, search_hi);
-        if (std::abs(g1 - g0) > 1e-12) {
-          const double c = c0 - g0 * (c1 - c0) / (g1 - g0);
-          for (std::size_t i = 0; i < s.size(); ++i) cm[i] = c * accel[g][i];
-          coil_found = c;
-        }
-      }
-      if (it > 0 && g == sweep_segment) {
-        // The sweep starts at zero by definition.
-        solve_positions(array, s, cm, -0.5 * motor.magnet_pitch_m, 0.5 * motor.magnet_pitch_m, x);
+      if (it == 0) {
+        // Relative positions: any period will do. They place the segment later.
+        relative_positions(array, s, cm, x);
+        x_rel[g] = x;
       } else {
-        solve_positions(array, s, cm, search_lo, search_hi, x);
+        // On the table: the whole segment decides which period it starts in.
+        const double start = place_segment(table, s, cm, x_rel[g], -frame_shift, motor.magnet_pitch_m);
+        if (g != sweep_segment) {
+          // Fast motion: the coil field shifts the Hall positions themselves, so it
+          // is found here, as the value that leaves no residual in step with the
+          // acceleration (linear in it: one secant step from two trials).
+          const double c0 = coil, c1 = coil + 1e-3;
+          const double g0 = coil_residual_slope(motor, array, s, accel[g], c0, ic.dynamic_min_accel_mps2, start);
+          const double g1 = coil_residual_slope(motor, array, s, accel[g], c1, ic.dynamic_min_accel_mps2, start);
+          if (std::abs(g1 - g0) > 1e-12) {
+            const double c = c0 - g0 * (c1 - c0) / (g1 - g0);
+            for (std::size_t i = 0; i < s.size(); ++i) cm[i] = c * accel[g][i];
+            coil_found = c;
+          }
+        }
+        track_positions(array, s, cm, start, x);
       }
       passes[g] = find_passes(x, ts[g], cfg, ic);
       for (auto& p : passes[g]) fit_line(x, ts[g], p);
@@ -479,8 +494,11 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         }
       }
       auto mismatch = [&](const Pass& p, bool at_end) {
-        // Line minus Hall position over the 100 samples at the join.
-        const std::size_t n = std::min<std::size_t>(100, p.end - p.begin);
+        // Line minus Hall position over a whole magnet period at the join (a
+        // shorter stretch would see the table's error at one phase only), at most
+        // half the pass.
+        const auto period = static_cast<std::size_t>(motor.magnet_pitch_m / std::max(1e-6, std::abs(p.v)) / ts[g]);
+        const std::size_t n = std::max<std::size_t>(1, std::min(period, (p.end - p.begin) / 2));
         double sum = 0.0;
         for (std::size_t k = 0; k < n; ++k) {
           const std::size_t i = at_end ? p.end - 1 - k : p.begin + k;
@@ -520,9 +538,40 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         const std::size_t to = q == ps.size() ? s.size() : ps[q].begin;
         if (to <= from) continue;
         const bool has_before = q > 0, has_after = q < ps.size();
-        // A turnaround (a pass on either side) joins the two lines through the Hall
-        // positions, shifted linearly; the start and the end of a recording (a pass
-        // on one side only) are bridged by the accelerometer from the line.
+        // A turnaround (a pass on either side) is bridged by the accelerometer
+        // from the line before to the line after: integrated from the first, with
+        // the scale and bias corrections that land it on the second in position
+        // and speed (the two lines are the carriage's truth, the accelerometer only
+        // has to carry the shape between them). The start and the end of a
+        // recording (a pass on one side only) are bridged from the line.
+        if (has_before && has_after && to - from <= max_gap) {
+          const Pass& pa = ps[q - 1];
+          const Pass& pb = ps[q];
+          // Integrates a from the state before `from` through `to` (the next line's first sample).
+          const std::size_t len = to - from + 1;
+          std::vector<double> xa(len), x1(len), xz(len);
+          double va = 0.0, v1 = 0.0, vz = pa.v, pa_x = 0.0, p1_x = 0.0, pz_x = line_at(pa, pa.end - 1, ts[g]);
+          for (std::size_t i = from; i <= to; ++i) {
+            const double ai = acc(i);
+            va += ai * ts[g], v1 += ts[g], vz += ai * ts[g];
+            pa_x += va * ts[g], p1_x += v1 * ts[g], pz_x += vz * ts[g];
+            xa[i - from] = pa_x, x1[i - from] = p1_x, xz[i - from] = pz_x;
+          }
+          const double dx = line_at(pb, to, ts[g]) - pz_x, dv = pb.v - vz;
+          const double det = pa_x * v1 - p1_x * va;
+          const double alpha = det != 0.0 ? (dx * v1 - p1_x * dv) / det : 0.0;
+          const double beta = det != 0.0 ? (pa_x * dv - dx * va) / det : 0.0;
+          if (det != 0.0 && std::isfinite(alpha) && std::isfinite(beta) && std::abs(alpha) < 0.5) {
+            for (std::size_t i = from; i < to; ++i) {
+              bridged[g][i] = 1;
+              xr[i] = xz[i - from] + alpha * xa[i - from] + beta * x1[i - from];
+            }
+            const double m0 = mismatch(pa, true), m1 = mismatch(pb, false);
+            join_sq += m0 * m0 + m1 * m1;
+            joins += 2;
+            continue;
+          }
+        }
         if (has_before != has_after && to - from <= max_gap) {
           for (std::size_t i = from; i < to; ++i) bridged[g][i] = 1;
           std::vector<double> xf(to - from, 0.0), xb(to - from, 0.0);
@@ -612,6 +661,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       double zero = 0.0;
       for (std::size_t i = 0; i < n; ++i) zero += xr[i];
       zero /= static_cast<double>(n);
+      frame_shift += zero;
       for (auto& w : work)
         for (auto& x : w.reference_m) x -= zero;
       lo -= zero;
@@ -623,10 +673,26 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       lo = *std::min_element(xr.begin(), xr.end());
       hi = *std::max_element(xr.begin(), xr.end());
       sweep_lo = lo;
+      // Where the slow passes (the lines, not the accelerometer's bridges) begin.
+      sweep_pass_lo = hi;
+      for (const auto& p : passes[sweep_segment]) sweep_pass_lo = std::min({sweep_pass_lo, xr[p.begin], xr[p.end - 1]});
     }
     rep.swept_m = hi - lo;
     rep.periods = static_cast<int>(std::floor(rep.swept_m / motor.magnet_pitch_m + 1e-6));
 
+    // Convergence: how far the estimate moved since the last iteration (RMS over
+    // every segment, in the same frame: both have their zero at the sweep's start).
+    {
+      double sq = 0.0;
+      long n = 0;
+      for (std::size_t g = 0; g < ng; ++g) {
+        const auto& xr = work[g].reference_m;
+        if (prev_xr[g].size() == xr.size())
+          for (std::size_t i = 0; i < xr.size(); i += 7) sq += (xr[i] - prev_xr[g][i]) * (xr[i] - prev_xr[g][i]), ++n;
+        prev_xr[g] = xr;
+      }
+      change_m = n > 0 ? std::sqrt(sq / static_cast<double>(n)) : std::numeric_limits<double>::infinity();
+    }
     // The estimate is where the Halls saw the carriage; the ruler it stands in for
     // reads the carriage now: shift it by the Hall delay.
     for (std::size_t g = 0; g < ng; ++g) {
@@ -681,21 +747,22 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       char line[320];
       std::snprintf(line, sizeof line,
                     "iteration %d: Hall delay used %.2f us (reproduced %.2f), coil field %.4f mV/(m/s^2) (secant %.4f), "
-                    "accelerometer scale %.5f bias %.4f delay %.1f us, table residual %.3f mV, joins %.3f um",
+                    "accelerometer scale %.5f bias %.4f delay %.1f us, table residual %.3f mV, joins %.3f um, moved %.4f um",
                     it + 1, hall_delay * 1e6, idrep.hall_delay_s * 1e6, idrep.coil_field_v_per_mps2 * 1e3,
                     coil_found * 1e3, cal.model.accel_scale, cal.model.accel_bias_mps2, cal.model.accel_delay_s * 1e6,
-                    idrep.table_residual_mv, rep.join_mismatch_m * 1e6);
+                    idrep.table_residual_mv, rep.join_mismatch_m * 1e6, change_m * 1e6);
       rep.iterations.push_back(line);
     }
-    // The iterations need not settle (the coil field, the accelerometer and the
-    // joins pull on each other): keep the one whose table explains the readings best.
-    if (it > 0 && idrep.dynamic_samples >= ic.dynamic_min_samples && idrep.table_residual_mv < best_residual_mv) {
-      best_residual_mv = idrep.table_residual_mv;
-      best_cal = cal;
-      best_idrep = idrep;
-      best_hall_delay = hall_delay;
-      best_join_m = rep.join_mismatch_m;
-      best_sweep_lo = sweep_lo;
+    // Converged: the estimate and the accelerometer's scale (what the fast
+    // motion's placement and the coil field feed back into) stopped moving. The
+    // result kept is that of the last iteration: the converged one.
+    hall_delay_used = hall_delay;
+    const double scale_change = std::abs(cal.model.accel_scale - previous_scale);
+    previous_scale_change = scale_change;
+    previous_scale = cal.model.accel_scale;
+    if (it >= 2 && change_m <= cfg.converged_m && scale_change <= cfg.converged_scale) {
+      converged = true;
+      break;
     }
     if (idrep.dynamic_samples >= ic.dynamic_min_samples && cal.model.accel_scale > 0.8 && cal.model.accel_scale < 1.2) {
       accel_scale = cal.model.accel_scale;
@@ -707,14 +774,9 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     }
   }
 
-  if (best_residual_mv < std::numeric_limits<double>::infinity()) {
-    cal = best_cal;
-    idrep = best_idrep;
-    hall_delay = best_hall_delay;
-    rep.join_mismatch_m = best_join_m;
-    rep.hall_delay_reproduced_s = idrep.hall_delay_s;
-    sweep_lo = best_sweep_lo;
-  }
+  hall_delay = hall_delay_used;
+  rep.converged = converged;
+  rep.last_change_m = change_m;
   out = cal;
   out.model.hall_delay_s = hall_delay;
   if (accel_given) out.model.accel_delay_s = cfg.accel_delay_s;
@@ -728,15 +790,18 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   // reached only through the accelerometer bridged back from the first slow pass.
   {
     double home = 0.0, rising = 0.0, falling = 0.0;
-    if (table_home(out.table, sweep_lo + 0.25 * motor.magnet_pitch_m, home, rising, falling)) {
+    // The first half-wave wholly within the slow passes: the table is made from
+    // the lines there, not from the accelerometer bridged to the recording's start.
+    const double from = std::max(sweep_lo + 0.25 * motor.magnet_pitch_m, sweep_pass_lo);
+    if (table_home(out.table, from, home, rising, falling)) {
       out.table.start_m -= home;
       rep.home_from_sweep_start_m = home;
       rep.home_rising_m = rising - home;
       rep.home_falling_m = falling - home;
       char line[256];
       std::snprintf(line, sizeof line,
-                    "position 0 is home: the centre of sensor 0's first whole positive half-wave from the near end "
-                    "of the sweep (%.3f mm from where the sweep started)",
+                    "position 0 is home: the centre of sensor 0's first whole positive half-wave within the slow "
+                    "passes from the near end of the sweep (%.3f mm from where the sweep started)",
                     home * 1e3);
       rep.zero_definition = line;
     } else {
@@ -753,6 +818,15 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         "the Hall delay cannot be measured without a reference (every sensor could lag by the same time): it was "
         "taken as 0; give the Halls' delay from the front end's design (--hall-delay-us) or the accelerometer's from "
         "its data sheet (--accel-delay-us)");
+  }
+  if (!rep.converged) {
+    std::snprintf(buf, sizeof buf,
+                  "the iterations did not settle in %d: the last one still moved the self-made position by %.3f um "
+                  "RMS (settled is %.3f um) and the accelerometer scale by %.5f: the slow passes are not steady "
+                  "enough to be the ruler; record the sweep again at a steady speed",
+                  static_cast<int>(rep.iterations.size()), rep.last_change_m * 1e6, cfg.converged_m * 1e6,
+                  std::abs(previous_scale_change));
+    r.problems.push_back(buf);
   }
   if (rep.join_mismatch_m > 2e-6) {
     std::snprintf(buf, sizeof buf,

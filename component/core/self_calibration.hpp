@@ -61,8 +61,12 @@ namespace ve::core {
 
 struct SelfCalibrationConfig {
   IdentificationConfig identification;
-  /// Outer iterations: solve positions with the table, rebuild the table.
-  int iterations = 5;
+  /// Most outer iterations (solve positions with the table, rebuild the table);
+  /// they stop earlier once converged: the estimate moved by at most converged_m
+  /// RMS and the accelerometer's scale by at most converged_scale since the last.
+  int iterations = 12;
+  double converged_m = 0.05e-6;
+  double converged_scale = 2e-4;
   /// The one absolute delay the recording cannot tell: give the Halls' (from the
   /// front end's filter design) or the accelerometer's (its data sheet). When both
   /// are NaN the Hall delay is taken as 0 and the report says so.
@@ -110,6 +114,8 @@ struct SelfCalibrationReport {
   std::string hall_delay_source;
   double hall_delay_reproduced_s = 0.0; ///< what forward/backward gave against the self-made position (a check)
   std::vector<std::string> iterations;  ///< one line per iteration: what it found
+  bool converged = false;               ///< the iterations settled (see SelfCalibrationConfig)
+  double last_change_m = 0.0;           ///< how far the last iteration moved the estimate, RMS [m]
 };
 
 /// Identifies table and sensor model without a reference. False (with `error`)

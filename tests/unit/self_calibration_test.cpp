@@ -11,6 +11,7 @@
 #include "core/pipeline.hpp"
 #include "core/self_calibration.hpp"
 #include "core/status.hpp"
+#include "home_truth.hpp"
 #include "realistic_fixture.hpp"
 #include "sim/sim_source.hpp"
 
@@ -42,44 +43,6 @@ const NoRef& no_ref() {
     return n;
   }();
   return r;
-}
-
-/// Home (the calibration's position 0) located on the simulator's own sensor 0
-/// and magnet track, in the simulator's frame: the same definition as
-/// identify_without_reference's (the mean of sensor 0's rising and then falling
-/// crossing of its mid level, 0.5 (min + max) over the travel), applied to the
-/// noiseless Hall model. The calibration only says which half-wave (where it
-/// found it, to tens of um, from the sweep's start, which is the simulator's 0);
-/// where in it is the simulator's.
-double home_truth_m(const ve::config::AxisConfig& axis, const ve::core::SelfCalibrationReport& rep) {
-  ve::sim::SimSource sim(axis.motor, axis.driver.sim);
-  const double pitch = axis.motor.magnet_pitch_m;
-  double lo = 1e9, hi = -1e9;
-  for (double x = -pitch; x <= axis.motor.travel_m + pitch; x += 5e-6) {
-    const double v = sim.hall_voltage_noiseless(0, x);
-    lo = std::min(lo, v), hi = std::max(hi, v);
-  }
-  const double mid = 0.5 * (lo + hi);
-  // The crossing of the mid level in the given direction nearest to `near`.
-  auto crossing = [&](double near, bool rising) {
-    const double step = 1e-6;
-    double best = std::nan(""), best_d = 1e9;
-    for (double x = near - 0.25 * pitch; x < near + 0.25 * pitch; x += step) {
-      double a = sim.hall_voltage_noiseless(0, x) - mid, b = sim.hall_voltage_noiseless(0, x + step) - mid;
-      if ((a < 0) == (b < 0) || (a < 0) != rising) continue;
-      double l = x, h = x + step;  // bisection to well below a nanometre
-      for (int k = 0; k < 40; ++k) {
-        const double m = 0.5 * (l + h);
-        ((sim.hall_voltage_noiseless(0, m) - mid < 0) == (a < 0) ? l : h) = m;
-      }
-      const double c = 0.5 * (l + h);
-      if (std::abs(c - near) < best_d) best_d = std::abs(c - near), best = c;
-    }
-    return best;
-  };
-  const double rising = crossing(rep.home_from_sweep_start_m + rep.home_rising_m, true);
-  const double falling = crossing(rep.home_from_sweep_start_m + rep.home_falling_m, false);
-  return 0.5 * (rising + falling);
 }
 
 struct Scenario {
@@ -189,7 +152,7 @@ TEST(SelfCalibration, MeetsTheSpecOnTheRealisticScenarios) {
   const NoRef& n = no_ref();
   ASSERT_TRUE(n.ok);
   const auto& r = ve::test::realistic("sim-realistic.yaml");
-  const double home = home_truth_m(r.axis, n.report);
+  const double home = ve::test::home_truth_m(r.axis.motor, r.axis.driver.sim, n.report);
   ASSERT_TRUE(std::isfinite(home));
   std::printf("[ figures  ] home: %.4f mm in the simulator's frame (the calibration put it %.4f mm from the sweep's "
               "start: the accelerometer bridge is off by %.3f um); %s\n",

@@ -1,0 +1,213 @@
+// Calibration without a reference on motors nobody tuned it on: the population of
+// simulated motors (drivers/sim/population.hpp), each given to the calibration by
+// its data sheet only, with the Hall delay from the hardware's design. For each:
+// the simulated calibration run with its reference column blanked, and the result
+// against the simulator's truth: the accelerometer's figures, the sensors'
+// placement, and the position the self-made table gives on noiseless readings
+// over the whole travel, from home (tests/unit/home_truth.hpp).
+//
+// Three motors run by default; VE_POPULATION_MOTORS=20 runs seeds 1..20, and
+// VE_POPULATION_SEEDS=2,13 runs those.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "config/loader.hpp"
+#include "core/hall_array.hpp"
+#include "core/self_calibration.hpp"
+#include "home_truth.hpp"
+#include "sim/calibration_run.hpp"
+#include "sim/population.hpp"
+#include "sim/sim_source.hpp"
+
+namespace {
+
+/// The sweep speed of the population's calibration runs: 2.5x the default, so a
+/// 2 m motor records 80 s rather than 200 s; the calibration must still meet its
+/// accuracy at it.
+constexpr double kSweepSpeedMps = 0.05;
+
+struct Outcome {
+  std::uint64_t seed = 0;
+  std::string summary;
+  bool ok = false, good = false;
+  std::string error;
+  std::vector<std::string> problems, iterations;
+  double seconds = 0.0;
+  double hall_delay_reproduced_err_s = 0.0;
+  double accel_scale_rel_err = 0.0, accel_bias_err = 0.0, accel_delay_err_s = 0.0;
+  double sensor_offset_max_err_m = 0.0;
+  double position_rms_m = 0.0, position_max_m = 0.0, position_bias_m = 0.0;
+  double position_worst_at_m = 0.0;  ///< where (simulator's frame)
+  int position_failed = 0;  ///< noiseless checks with no usable fix
+};
+
+ve::core::FilterConfig tuning() {
+  const auto loaded = ve::config::load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/sim.yaml");
+  EXPECT_TRUE(loaded.ok()) << ve::config::to_string(loaded.errors);
+  return loaded.config.axes.at(0).motor.filter;
+}
+
+/// The Hall position the calibration's table gives on noiseless readings, against
+/// the truth measured from home, at positions spread over the whole travel.
+/// The motor's simulator standing still inside its travel (the population leaves
+/// the profile at its default, which a short motor does not accept): for its
+/// noiseless Hall model and its sensors' placement.
+ve::sim::SimConfig truth_config(const ve::sim::PopulationMotor& p) {
+  ve::sim::SimConfig cfg = p.sim;
+  cfg.profile = ve::sim::MotionProfileConfig{};
+  cfg.profile.kind = ve::sim::MotionProfileConfig::Kind::standstill;
+  cfg.profile.start_m = 0.5 * p.hardware.travel_m;
+  cfg.profile.min_m = 0.05 * p.hardware.travel_m;
+  cfg.profile.max_m = 0.95 * p.hardware.travel_m;
+  return cfg;
+}
+
+void check_positions(const ve::sim::PopulationMotor& p, const ve::core::Calibration& cal, double home, Outcome& o) {
+  ve::sim::SimSource sim(p.hardware, truth_config(p));
+  const ve::core::HallArray array(p.datasheet, cal.table);
+  const auto& m = p.datasheet;
+  const int n = m.hall.count;
+  constexpr int kPoints = 997;  // not a multiple of anything the pitch is
+  double sum = 0.0, sum2 = 0.0, worst = 0.0;
+  int used = 0;
+  for (int k = 0; k < kPoints; ++k) {
+    const double x = m.travel_m * (k + 0.5) / kPoints;
+    ve::core::RawSample s;
+    s.hall_count = n;
+    s.hall_valid_mask = (1u << n) - 1u;
+    for (int i = 0; i < n; ++i)
+      s.hall_v[static_cast<std::size_t>(i)] = std::clamp(sim.hall_voltage_noiseless(i, x), m.adc.min_v, m.adc.max_v);
+    const double truth = x - home;
+    const auto fix = array.solve(s, truth);
+    if (!fix.ok) {
+      ++o.position_failed;
+      continue;
+    }
+    const double e = fix.position_m - truth;
+    sum += e, sum2 += e * e, ++used;
+    if (std::abs(e) > worst) worst = std::abs(e), o.position_worst_at_m = x;
+  }
+  if (used > 0) {
+    o.position_rms_m = std::sqrt(sum2 / used);
+    o.position_bias_m = sum / used;
+  }
+  o.position_max_m = worst;
+}
+
+Outcome calibrate(std::uint64_t seed, const ve::core::FilterConfig& filter) {
+  Outcome o;
+  o.seed = seed;
+  const auto p = ve::sim::draw_population_motor(seed, filter);
+  o.summary = p.summary();
+  ve::sim::CalibrationRunConfig run;
+  run.sweep_speed_mps = kSweepSpeedMps;
+  std::vector<ve::core::ReferenceSegment> segments;
+  if (!ve::sim::record_calibration_run(p.hardware, p.sim, run, segments, o.error)) return o;
+  for (auto& s : segments) s.reference_m.assign(s.reference_m.size(), std::nan(""));
+  ve::core::SelfCalibrationConfig cfg;
+  cfg.hall_delay_s = p.sim.imperfections.hall_delay_s;
+  ve::core::Calibration cal;
+  ve::core::SelfCalibrationReport rep;
+  const auto t0 = std::chrono::steady_clock::now();
+  o.ok = ve::core::identify_without_reference(p.datasheet, segments, cfg, cal, rep, o.error);
+  o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!o.ok) return o;
+  o.good = rep.identification.good;
+  o.problems = rep.identification.problems;
+  o.iterations = rep.iterations;
+  const auto& im = p.sim.imperfections;
+  const double scale = (1.0 + im.accel_scale_error) * (1.0 + im.frame_reaction_ratio);
+  o.hall_delay_reproduced_err_s = rep.hall_delay_reproduced_s - im.hall_delay_s;
+  o.accel_scale_rel_err = cal.model.accel_scale / scale - 1.0;
+  o.accel_bias_err = cal.model.accel_bias_mps2 - im.accel_bias_mps2;
+  o.accel_delay_err_s = cal.model.accel_delay_s - im.accel_delay_s;
+  ve::sim::SimSource sim(p.hardware, truth_config(p));
+  EXPECT_TRUE(sim.ok()) << sim.last_error();
+  for (int s = 1; s < p.datasheet.hall.count && s < static_cast<int>(rep.sensor_offset_m.size()); ++s) {
+    const double truth = sim.sensor_position_m(s) - sim.sensor_position_m(0);
+    o.sensor_offset_max_err_m =
+        std::max(o.sensor_offset_max_err_m, std::abs(rep.sensor_offset_m[static_cast<std::size_t>(s)] - truth));
+  }
+  const double home = ve::test::home_truth_m(p.hardware, truth_config(p), rep);
+  if (std::isfinite(home)) {
+    check_positions(p, cal, home, o);
+  } else {
+    o.position_rms_m = o.position_max_m = std::nan("");
+  }
+  return o;
+}
+
+/// Seeds 1..VE_POPULATION_MOTORS (3 unless set), or the list VE_POPULATION_SEEDS
+/// ("2,13") when that is set.
+std::vector<std::uint64_t> seeds_to_run() {
+  std::vector<std::uint64_t> seeds;
+  if (const char* list = std::getenv("VE_POPULATION_SEEDS")) {
+    for (const char* c = list; *c != '\0';) {
+      char* end = nullptr;
+      const unsigned long long v = std::strtoull(c, &end, 10);
+      if (end == c) {
+        ++c;
+        continue;
+      }
+      seeds.push_back(v);
+      c = end;
+    }
+    if (!seeds.empty()) return seeds;
+  }
+  const char* env = std::getenv("VE_POPULATION_MOTORS");
+  const int n = std::clamp(env != nullptr ? std::atoi(env) : 3, 1, 200);
+  for (int seed = 1; seed <= n; ++seed) seeds.push_back(static_cast<std::uint64_t>(seed));
+  return seeds;
+}
+
+TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
+  const auto filter = tuning();
+  std::vector<Outcome> all;
+  for (const std::uint64_t seed : seeds_to_run()) {
+    all.push_back(calibrate(seed, filter));
+    const Outcome& o = all.back();
+    std::printf("[ motor    ] %s\n", o.summary.c_str());
+    if (!o.ok) std::printf("[ refused  ] %s\n", o.error.c_str());
+    for (const auto& l : o.iterations) std::printf("[ iteration] %s\n", l.c_str());
+    for (const auto& pr : o.problems) std::printf("[ problem  ] %s\n", pr.c_str());
+    std::fflush(stdout);
+  }
+  std::printf("[ table    ] seed ok good  time_s  pos_rms_um pos_bias_um pos_max_um at_mm fails  scale_err_%% bias_err "
+              "delay_err_us hall_delay_repr_err_us sensor_max_err_um\n");
+  for (const auto& o : all)
+    std::printf("[ table    ] %4llu %2d %4d %7.2f %11.3f %11.3f %10.3f %6.1f %5d %12.4f %8.4f %12.1f %22.2f %17.2f\n",
+                static_cast<unsigned long long>(o.seed), o.ok ? 1 : 0, o.good ? 1 : 0, o.seconds,
+                o.position_rms_m * 1e6, o.position_bias_m * 1e6, o.position_max_m * 1e6, o.position_worst_at_m * 1e3, o.position_failed,
+                o.accel_scale_rel_err * 100.0, o.accel_bias_err, o.accel_delay_err_s * 1e6,
+                o.hall_delay_reproduced_err_s * 1e6, o.sensor_offset_max_err_m * 1e6);
+  // Met on every motor so far: no refusal, a table that solves everywhere, the
+  // accelerometer's scale. The targets not met on every motor yet (verdict good,
+  // Hall position within 2 um RMS over the whole travel) are counted here and
+  // asserted with VE_POPULATION_TARGETS=1.
+  const bool targets = std::getenv("VE_POPULATION_TARGETS") != nullptr;
+  int good = 0, accurate = 0;
+  for (const auto& o : all) {
+    SCOPED_TRACE(o.summary);
+    ASSERT_TRUE(o.ok) << o.error;
+    EXPECT_EQ(o.position_failed, 0);
+    EXPECT_LE(std::abs(o.accel_scale_rel_err), 0.005);
+    good += o.good ? 1 : 0;
+    accurate += o.position_rms_m <= 2e-6 ? 1 : 0;
+    if (targets) {
+      EXPECT_TRUE(o.good);
+      EXPECT_LE(o.position_rms_m, 2e-6);
+    }
+  }
+  std::printf("[ summary  ] %zu motors: %zu calibrated, %d good, %d within 2 um RMS\n", all.size(),
+              static_cast<std::size_t>(std::count_if(all.begin(), all.end(), [](const Outcome& o) { return o.ok; })),
+              good, accurate);
+}
+
+}  // namespace
