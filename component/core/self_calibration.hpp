@@ -21,8 +21,12 @@
 //     are fitted here instead, against the Hall positions of the fast motion only
 //     (never against stretches bridged with the accelerometer itself), with both
 //     sides through the same derivative filter.
-//  The fast segment is placed on the table by the magnets' signatures with the
-//  common mode (coil field) left out, over its first 0.5 s.
+//  Every segment is placed on the table by the magnets' signatures with the
+//  common mode (coil field) left out, scored over the whole segment at every
+//  whole-period shift. Turnarounds between two passes are bridged by the
+//  accelerometer, corrected in scale and bias to land on the next line. The loop
+//  stops once it has converged, and keeps that (last) iteration; one that does not
+//  settle is reported as a problem.
 //
 // What it cannot know (and says so):
 //  - The absolute zero: there is no reference mark. Position 0 is defined on the
