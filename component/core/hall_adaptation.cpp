@@ -19,12 +19,15 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   gain_limit_ = f.hall_gain_limit;
   offset_limit_v_ = f.hall_offset_limit_v;
   reopen_threshold_ = f.hall_drift_cusum;
+  max_shift_m_ = 1e-3 * motor.magnet_pitch_m;
+  // Farther from the rails than the largest gain change followed moves a reading.
+  rail_guard_v_ = f.hall_gain_limit * motor.hall.amplitude_v;
   reopen_gain_var_ = f.hall_gain_reopen_std * f.hall_gain_reopen_std;
   reopen_offset_var_ = f.hall_offset_reopen_std_v * f.hall_offset_reopen_std_v;
-  for (int i = 0; i < kMaxHalls; ++i) {
-    p_gg_[static_cast<std::size_t>(i)] = f.hall_gain_initial_std * f.hall_gain_initial_std;
-    p_dd_[static_cast<std::size_t>(i)] = f.hall_offset_initial_std_v * f.hall_offset_initial_std_v;
-  }
+  p0_gg_ = f.hall_gain_initial_std * f.hall_gain_initial_std;
+  p0_dd_ = f.hall_offset_initial_std_v * f.hall_offset_initial_std_v;
+  p_gg_.fill(p0_gg_);
+  p_dd_.fill(p0_dd_);
 }
 
 void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSample& out) const {
@@ -65,14 +68,19 @@ void HallAdaptation::update(const RawSample& raw, const HallTable& table, double
   double s_sr = 0.0, s_ss = 0.0;
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    // Random walk: the parameters may have moved since the last sample.
-    p_gg_[k] += q_gain_;
-    p_dd_[k] += q_offset_;
+    // Random walk: the parameters may have moved since the last sample; unseen for
+    // long (at standstill), no more unsure than at start-up.
+    if (p_gg_[k] < p0_gg_) p_gg_[k] = std::min(p_gg_[k] + q_gain_, p0_gg_);
+    if (p_dd_[k] < p0_dd_) p_dd_[k] = std::min(p_dd_[k] + q_offset_, p0_dd_);
     if (!(((mask | learn_only_mask) & raw.hall_valid_mask) >> i & 1u)) continue;
     const double y = raw.hall_v[k];
     if (!(y > lo_v_ && y < hi_v_)) continue;
     double t, slope;
     table.evaluate(i, x_m, t, slope);
+    // Where the table itself is at (or near) a rail it holds the clamp, not the
+    // sensor's curve: a changed gain moves the reading off the rail there, which
+    // the model cannot express. Such places teach nothing.
+    if (!(t > lo_v_ + rail_guard_v_ && t < hi_v_ - rail_guard_v_)) continue;
     u[k] = t - mid_v_;
     sl[k] = slope;
     r[k] = y - (common_mode_v + mid_v_ + delta_[k] + (1.0 + gamma_[k]) * u[k]);
@@ -91,6 +99,8 @@ void HallAdaptation::update(const RawSample& raw, const HallTable& table, double
     const double others_ss = own ? s_ss - sl[k] * sl[k] : s_ss;
     if (!(others_ss > 1e-12 * (s_ss + 1e-300))) continue;
     const double shift_m = (own ? s_sr - sl[k] * r[k] : s_sr) / others_ss;
+    // Far from the prediction the residual is no longer linear in the shift.
+    if (std::abs(shift_m) > max_shift_m_) continue;
     const double res = r[k] - sl[k] * shift_m;
     const double rv = noise_var_v2_ * (1.0 + sl[k] * sl[k] / others_ss);
     // Innovation variance with H = [u, 1].

@@ -22,6 +22,7 @@
 // Fixed size; nothing allocates per sample.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 
@@ -56,6 +57,14 @@ class HallAdaptation {
                   double& std_v) const;
 
   bool enabled() const { return enabled_; }
+  /// Variance the adapted gain and offset leave in sensor i's corrected reading
+  /// where its table reads `table_v` [V^2]; 0 when adaptation is off.
+  double reading_variance(int i, double table_v) const {
+    if (!enabled_) return 0.0;
+    const auto k = static_cast<std::size_t>(i);
+    const double u = table_v - mid_v_;
+    return std::max(0.0, u * u * p_gg_[k] + 2.0 * u * p_gd_[k] + p_dd_[k]);
+  }
   double gain(int i) const { return gamma_[static_cast<std::size_t>(i)]; }
   double offset_v(int i) const { return delta_[static_cast<std::size_t>(i)]; }
   /// The sensor's gain or offset ran into its bound: more change than slow drift explains.
@@ -76,8 +85,11 @@ class HallAdaptation {
   double lo_v_, hi_v_;
   double noise_var_v2_;
   double q_gain_, q_offset_;          ///< per-sample random-walk variances
+  double p0_gg_, p0_dd_;              ///< start-up variances, where the random walk stops
   double gain_limit_, offset_limit_v_;
   double reopen_threshold_;
+  double max_shift_m_;
+  double rail_guard_v_;  ///< table values this close to a rail are not learnt from  ///< larger prediction errors teach nothing (not linear)
   double reopen_gain_var_, reopen_offset_var_;
   std::array<double, kMaxHalls> gamma_{}, delta_{};
   std::array<double, kMaxHalls> p_gg_{}, p_gd_{}, p_dd_{};

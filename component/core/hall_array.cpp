@@ -1,5 +1,7 @@
 #include "hall_array.hpp"
 
+#include "hall_adaptation.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -25,7 +27,13 @@ bool HallArray::usable(const RawSample& s, int i, std::uint32_t use_mask) const 
 }
 
 HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_mode_v,
-                         std::uint32_t use_mask) const {
+                         std::uint32_t use_mask, const HallAdaptation* adaptation) const {
+  // Weight of sensor i with its reading's table value t: the noise, plus what its
+  // adapted gain and offset are still unsure of.
+  const double noise_var = 1.0 / weight_;
+  auto weight = [&](int i, double t) {
+    return adaptation ? 1.0 / (noise_var + adaptation->reading_variance(i, t)) : weight_;
+  };
   HallFix fix;
   for (int i = 0; i < sensors_; ++i)
     if (!(sample.hall_valid_mask >> i & 1u)) fix.missing_mask |= 1u << i;
@@ -40,8 +48,9 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
       if (!usable(sample, i, use_mask)) continue;
       double t, slope;
       table_.evaluate(i, x, t, slope);
-      h += slope * slope;
-      g += slope * (sample.hall_v[i] - common_mode_v - t);
+      const double w = weight(i, t);
+      h += w * slope * slope;
+      g += w * slope * (sample.hall_v[i] - common_mode_v - t);
     }
     if (h <= 0.0) return fix;
     const double dx = std::clamp(g / h, -max_step, max_step);
@@ -64,8 +73,9 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
     table_.evaluate(i, x, t, slope);
     const double r = sample.hall_v[i] - common_mode_v - t;
     if (usable(sample, i, use_mask)) {
-      chi2 += r * r * weight_;
-      h += slope * slope;
+      const double w = weight(i, t);
+      chi2 += r * r * w;
+      h += w * slope * slope;
       ++used;
     } else if (std::abs(r) > 0.25) {
       fix.conflict_mask |= 1u << i;  // inconsistent with a saturated sensor
@@ -76,7 +86,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   fix.sensors_used = used;
   if (used == 0 || h <= 0.0 || fix.conflict_mask != 0) return fix;
   fix.ok = true;
-  fix.variance_m2 = 1.0 / (h * weight_) + floor_m2_;
+  fix.variance_m2 = 1.0 / h + floor_m2_;
   return fix;
 }
 

@@ -26,6 +26,8 @@ struct HallFix {
   std::uint32_t conflict_mask = 0;
 };
 
+class HallAdaptation;
+
 class HallArray {
  public:
   HallArray(const MotorConfig& motor, HallTable table);
@@ -34,8 +36,10 @@ class HallArray {
   /// Converges when the guess is within about pitch/8 of the truth. No allocation.
   /// `common_mode_v` is removed from every reading first (the coil field's offset).
   /// Only sensors in `use_mask` take part (the others are ignored entirely).
+  /// With `adaptation`, each sensor's reading also carries the uncertainty of its
+  /// adapted gain and offset: it weighs less in the fix and in its chi-square.
   HallFix solve(const RawSample& sample, double guess_m, double common_mode_v = 0.0,
-                std::uint32_t use_mask = 0xFFu) const;
+                std::uint32_t use_mask = 0xFFu, const HallAdaptation* adaptation = nullptr) const;
 
   /// Searches [lo_m, hi_m] for the best-matching position (start-up, re-acquisition),
   /// then refines it. Cost grows with the window; use at most a few periods.

@@ -134,8 +134,8 @@ struct FilterConfig {
   double hall_gain_random_walk_per_sqrt_s = 2e-4;
   double hall_offset_random_walk_v_per_sqrt_s = 0.05e-3;
   /// Their uncertainty at start-up (the motor need not be at its calibration temperature).
-  double hall_gain_initial_std = 0.002;
-  double hall_offset_initial_std_v = 0.0005;
+  double hall_gain_initial_std = 0.001;
+  double hall_offset_initial_std_v = 0.0003;
   /// A CUSUM of a sensor's normalised residual beyond this re-opens its covariance
   /// by these (a change faster than the random walk: a step of temperature). 0: off.
   double hall_drift_cusum = 40.0;

@@ -14,9 +14,9 @@ namespace {
 // not fit for a position or velocity loop.
 constexpr double kValidPositionStdM = 50e-6;
 constexpr double kValidVelocityStdMps = 10e-3;
-// The Hall adaptation learns only while the filter is settled: its prior position
-// within this, and the fix within this many sigmas of it.
-constexpr double kAdaptPriorStdM = 2e-6;
+// The Hall adaptation starts learning this long after the filter (re)started ...
+constexpr double kAdaptSettleS = 0.05;
+// ... and learns only from fixes within this many sigmas of the prediction.
 constexpr double kAdaptInnovationSigma = 4.0;
 // A sensor is blamed for a disagreement only if removing it leaves a fix within
 // this many sigmas of the prediction, and removing any other does not.
@@ -35,7 +35,9 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   const int n = std::min(config.motor.hall.count, kMaxHalls);
   all_halls_mask_ = (1u << n) - 1u;
   min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
+  max_faulty_ = n;
   readmit_samples_ = std::max(1, static_cast<int>(std::lround(config.motor.filter.sensor_readmit_s * config.motor.sample_rate_hz)));
+  settle_samples_ = std::max(1, static_cast<int>(std::lround(kAdaptSettleS * config.motor.sample_rate_hz)));
 }
 
 HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, double common_mode_v,
@@ -43,7 +45,7 @@ HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, doub
   outlier_mask = 0;
   ambiguous = false;
   const double limit = cfg_.motor.filter.sensor_chi2_limit;
-  HallFix fix = hall_.solve(sample, guess_m, common_mode_v, use_mask);
+  HallFix fix = hall_.solve(sample, guess_m, common_mode_v, use_mask, &adapt_);
   if (fix.ok && fix.chi2 <= limit) return fix;
   // The sensors disagree (or one reads a rail where the others place it in the
   // middle): find the one sensor whose removal leaves a consistent fix, and among
@@ -57,7 +59,7 @@ HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, doub
   for (int i = 0; i < kMaxHalls; ++i) {
     const std::uint32_t bit = 1u << i;
     if (!(use_mask & sample.hall_valid_mask & bit)) continue;
-    const HallFix f = hall_.solve(sample, guess_m, common_mode_v, use_mask & ~bit);
+    const HallFix f = hall_.solve(sample, guess_m, common_mode_v, use_mask & ~bit, &adapt_);
     if (!f.ok || f.chi2 > limit) continue;
     ++candidates;
     const double d = f.position_m - guess_m;
@@ -87,10 +89,18 @@ void AxisPipeline::update_hall_health(std::uint32_t used_mask, std::uint32_t out
     if (!(used_mask & bit)) continue;
     double& score = fault_score_[i];
     score += alpha * (((outlier_mask & bit) ? 1.0 : 0.0) - score);
-    // A gain or offset beyond anything slow drift explains is a fault as well.
-    if (score > f.sensor_fault_on || adapt_.beyond_limits(i)) {
+    // A gain or offset beyond anything slow drift explains is a fault as well. At
+    // most a minority of the sensors is left out: when most disagree, it is the
+    // array's model that is off (a common drift), which the fix's chi-square and
+    // the status show, and leaving sensors out would only lose the position.
+    const bool fault = score > f.sensor_fault_on || adapt_.beyond_limits(i);
+    if (fault && faulty_count() < max_faulty_) {
       faulty_mask_ |= bit;
       readmit_streak_[i] = 0;
+    } else if (fault) {
+      suspect_mask_ |= bit;  // kept in the fix, but the position is not VALID
+    } else if (score < 0.5 * f.sensor_fault_on) {
+      suspect_mask_ &= ~bit;
     }
   }
 }
@@ -264,13 +274,18 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     // than the one the carriage is in: its sensors disagree by the two periods'
     // tolerances, which says nothing about their health (nor about their drift).
     const bool judge = fix.ok && !homing_in_progress();
-    if (judge && !ambiguous) update_hall_health(use & sample.hall_valid_mask, outlier);
+    // Blame waits until the adaptation has had a moment after a start: a motor
+    // warmer or colder than at calibration makes its most drifted sensor look like
+    // the odd one out at first. (The fix itself leaves an outlier out all along.)
+    if (judge && !ambiguous && settled_samples_ >= readmit_samples_)
+      update_hall_health(use & sample.hall_valid_mask, outlier);
     // Learn gains and offsets against the prediction (made before this fix, so the
-    // fix's own noise is not fed back) once the filter has settled, and only from
-    // fixes the prediction agrees with: a transient of the filter is not drift.
-    const double prior_pos_std = std::sqrt(kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos));
-    const bool learn = judge && rejected_in_row_ == 0 && settled_samples_ >= readmit_samples_ &&
-                       prior_pos_std < kAdaptPriorStdM;
+    // fix's own noise is not fed back) once the filter has settled after a start
+    // (its start-up transient is not drift), and only from fixes the prediction
+    // agrees with: when the filter has to follow the Halls against its model (an
+    // acceleration step, or anything the accelerometer does not confirm), what it
+    // follows must not be learnt as drift.
+    const bool learn = judge && settled_samples_ >= settle_samples_ && rejected_in_row_ == 0;
     if (fix.ok && cfg_.signature_homing) signature_step(corrected_, guess, common_mode, use);
     if (fix.ok) {
       without_fix_in_row_ = 0;
@@ -334,7 +349,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
 
   // Hall health: missing samples and sensors judged faulty.
   const std::uint32_t missing = all_halls_mask_ & ~sample.hall_valid_mask;
-  const std::uint32_t flagged = missing | faulty_mask_;
+  const std::uint32_t flagged = missing | faulty_mask_ | suspect_mask_;
   out_.hall_faulty_mask = faulty_mask_;
   status |= flagged << status::kHallFaultShift;
   int healthy = 0;

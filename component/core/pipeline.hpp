@@ -120,6 +120,10 @@ class AxisPipeline {
   double readmit_hi_m_[kMaxHalls] = {};
   int readmit_samples_ = 1;
   int settled_samples_ = 0;  ///< samples since the filter last (re)acquired
+  int settle_samples_ = 1;   ///< ... before the Hall adaptation learns
+  int max_faulty_ = 1;       ///< most sensors judged faulty at once (a minority) ...
+  std::uint32_t suspect_mask_ = 0;  ///< ... beyond it, sensors judged faulty stay in, flagged
+  int faulty_count() const { return __builtin_popcount(faulty_mask_); }
   std::uint64_t readmitted_ = 0;
   double fault_score_[kMaxHalls] = {};
   std::uint32_t faulty_mask_ = 0;

@@ -55,6 +55,7 @@ constexpr int kScenarioCount = 5;
 struct Cell {  // one motor, one ruler mode, one condition, one scenario
   bool ok = false;
   double pos_rms = NAN, vel_rms = NAN, pos_cov = NAN, vel_cov = NAN, valid = NAN, pos_bias = NAN;
+  double max_valid_err = 0.0;
   std::uint32_t flagged = 0;
 };
 
@@ -128,6 +129,7 @@ MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning,
         cell.vel_cov = r.err.velocity_coverage();
         cell.valid = r.valid_fraction();
         cell.flagged = r.flagged;
+        cell.max_valid_err = r.max_valid_error_m;
       }
     }
     if (o.temperature) {
@@ -226,13 +228,13 @@ int main(int argc, char** argv) {
        << o.motors << " good, " << cal_ok[ruler] - cal_good[ruler] << " poor, " << o.motors - cal_ok[ruler]
        << " failed; longest " << f("%.2f", worst_cal_s_per_m[ruler]) << " s of compute per metre of sweep.\n";
   md << "\n| ruler | condition | scenario | pos RMS worst / median [um] | vel RMS worst / median [mm/s] | "
-        "+-2sigma pos min / median | +-2sigma vel min / median | VALID min | motors with a healthy sensor flagged |\n"
-     << "|---|---|---|---|---|---|---|---|---|\n";
+        "+-2sigma pos min / median | +-2sigma vel min / median | VALID min | largest error while VALID [um] | motors with a healthy sensor flagged |\n"
+     << "|---|---|---|---|---|---|---|---|---|---|\n";
   for (int ruler = 0; ruler < 2; ++ruler)
     for (int k = 0; k < kConditionCount; ++k) {
       if (!o.temperature && k > 0) continue;
       for (int s = 0; s < kScenarioCount; ++s) {
-        std::vector<double> p, v, pc, vc, va;
+        std::vector<double> p, v, pc, vc, va, me;
         int flagged = 0, missing = 0;
         for (const auto& r : results) {
           const Cell& c = r.cell[ruler][k][s];
@@ -245,6 +247,7 @@ int main(int argc, char** argv) {
           pc.push_back(100 * c.pos_cov);
           vc.push_back(100 * c.vel_cov);
           va.push_back(100 * c.valid);
+          me.push_back(c.max_valid_err * 1e6);
           flagged += c.flagged != 0;
         }
         auto mx = [](const std::vector<double>& x) { return x.empty() ? NAN : *std::max_element(x.begin(), x.end()); };
@@ -253,7 +256,7 @@ int main(int argc, char** argv) {
            << scen[static_cast<std::size_t>(s)].name << " | " << f("%.3f", mx(p)) << " / " << f("%.3f", median(p))
            << " | " << f("%.4f", mx(v)) << " / " << f("%.4f", median(v)) << " | " << f("%.1f", mn(pc)) << " / "
            << f("%.1f", median(pc)) << " | " << f("%.1f", mn(vc)) << " / " << f("%.1f", median(vc)) << " | "
-           << f("%.2f", mn(va)) << " | " << flagged << (missing ? " (" + std::to_string(missing) + " not run)" : "")
+           << f("%.2f", mn(va)) << " | " << f("%.1f", mx(me)) << " | " << flagged << (missing ? " (" + std::to_string(missing) + " not run)" : "")
            << " |\n";
       }
     }
