@@ -14,6 +14,8 @@ namespace {
 // not fit for a position or velocity loop.
 constexpr double kValidPositionStdM = 50e-6;
 constexpr double kValidVelocityStdMps = 10e-3;
+// A disagreement among the Hall sensors fades from the published sigma over this long.
+constexpr double kDisagreementHoldS = 1.0;
 // The Hall adaptation starts learning this long after the filter (re)started ...
 constexpr double kAdaptSettleS = 0.05;
 // ... and learns only from fixes within this many sigmas of the prediction.
@@ -37,11 +39,12 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
   max_faulty_ = n;
   readmit_samples_ = std::max(1, static_cast<int>(std::lround(config.motor.filter.sensor_readmit_s * config.motor.sample_rate_hz)));
+  disagreement_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
   settle_samples_ = std::max(1, static_cast<int>(std::lround(kAdaptSettleS * config.motor.sample_rate_hz)));
 }
 
 HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, double common_mode_v,
-                                   std::uint32_t use_mask, std::uint32_t& outlier_mask, bool& ambiguous) const {
+                                   std::uint32_t use_mask, std::uint32_t& outlier_mask, bool& ambiguous) {
   outlier_mask = 0;
   ambiguous = false;
   const double limit = cfg_.motor.filter.sensor_chi2_limit;
@@ -56,14 +59,17 @@ HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, doub
   double best_score = std::numeric_limits<double>::infinity();
   HallFix best;
   int candidates = 0, agreeing = 0;
+  double lo_m = std::numeric_limits<double>::infinity(), hi_m = -lo_m;
   for (int i = 0; i < kMaxHalls; ++i) {
     const std::uint32_t bit = 1u << i;
     if (!(use_mask & sample.hall_valid_mask & bit)) continue;
     const HallFix f = hall_.solve(sample, guess_m, common_mode_v, use_mask & ~bit, &adapt_);
     if (!f.ok || f.chi2 > limit) continue;
     ++candidates;
+    lo_m = std::min(lo_m, f.position_m);
+    hi_m = std::max(hi_m, f.position_m);
     const double d = f.position_m - guess_m;
-    const double score = d * d / (var_pred + f.variance_m2);
+    const double score = d * d / (var_pred + disagreement_var_m2_ + f.variance_m2);
     if (score <= kBlameAgreementSigma * kBlameAgreementSigma) ++agreeing;
     if (score < best_score) {
       best_score = score;
@@ -75,13 +81,28 @@ HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, doub
   // one of them agrees with the prediction (a drift of every sensor leaves them
   // all far from it).
   ambiguous = candidates > 1 && !(agreeing == 1 && best_score <= kBlameAgreementSigma * kBlameAgreementSigma);
-  return outlier_mask ? best : fix;
+  if (ambiguous) {
+    // Which sensor is off cannot be told: the fix is only as good as the spread of
+    // the places the sensors point to. That error repeats from sample to sample
+    // (a drift, not noise), so it is held apart from the filter, which would
+    // average it away, and added to the published sigma (see step()).
+    const double half_spread = 0.5 * (hi_m - lo_m);
+    disagreement_seen_m2_ = std::max(disagreement_seen_m2_, half_spread * half_spread);
+  }
+  if (outlier_mask) return best;
+  // No single sensor explains the disagreement (all of them drifted, or the
+  // model is off): its size, chi-square over the noise, is held apart likewise.
+  if (fix.ok && fix.sensors_used > 1)
+    disagreement_seen_m2_ = std::max(disagreement_seen_m2_,
+                                     fix.variance_m2 * std::max(0.0, fix.chi2 / (fix.sensors_used - 1) - 1.0));
+  return fix;
 }
 
 void AxisPipeline::update_hall_health(std::uint32_t used_mask, std::uint32_t outlier_mask) {
-  // A sensor judged faulty stays out until the process restarts: judging it
-  // healthy again against fixes made by fewer sensors could let two failed sensors
-  // agree on a wrong place (seen in the tests), and a drive must never get that.
+  // A sensor judged faulty stays out until it has agreed with the estimate over
+  // enough motion (readmission_step): judging it healthy again against single
+  // fixes made by fewer sensors could let two failed sensors agree on a wrong
+  // place (seen in the tests), and a drive must never get that.
   const auto& f = cfg_.motor.filter;
   const double alpha = 1.0 / std::max(1.0, f.sensor_fault_time_constant_samples);
   for (int i = 0; i < kMaxHalls; ++i) {
@@ -338,7 +359,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.acceleration_mps2 = x(FusionFilter::kAcc);
   out_.accel_bias_mps2 = x(FusionFilter::kBias);
   out_.accel_scale = x(FusionFilter::kScale);
-  out_.position_std_m = std::sqrt(kf_.position_variance());
+  // Disagreement among the sensors that no sensor can be blamed for: a held
+  // maximum that decays over about a second, on top of the filter's own variance.
+  disagreement_var_m2_ = std::max(disagreement_seen_m2_, disagreement_var_m2_ * disagreement_decay_);
+  disagreement_seen_m2_ = 0.0;
+  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_);
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance());
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 

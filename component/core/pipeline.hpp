@@ -109,7 +109,7 @@ class AxisPipeline {
   /// it consistent (two sensors out of saturation always are), so no sensor can be
   /// blamed for it (a common drift looks like that).
   HallFix solve_robust(const RawSample& sample, double guess_m, double common_mode_v, std::uint32_t use_mask,
-                       std::uint32_t& outlier_mask, bool& ambiguous) const;
+                       std::uint32_t& outlier_mask, bool& ambiguous);
   void update_hall_health(std::uint32_t used_mask, std::uint32_t outlier_mask);
   /// Faulty sensors consistent with the estimate again over enough motion come back.
   void readmission_step(const RawSample& raw, double x_m, double common_mode_v);
@@ -122,7 +122,10 @@ class AxisPipeline {
   int settled_samples_ = 0;  ///< samples since the filter last (re)acquired
   int settle_samples_ = 1;   ///< ... before the Hall adaptation learns
   int max_faulty_ = 1;       ///< most sensors judged faulty at once (a minority) ...
-  std::uint32_t suspect_mask_ = 0;  ///< ... beyond it, sensors judged faulty stay in, flagged
+  std::uint32_t suspect_mask_ = 0;
+  double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
+  double disagreement_var_m2_ = 0.0;   ///< held and decaying, added to the published sigma
+  double disagreement_decay_ = 1.0;  ///< ... beyond it, sensors judged faulty stay in, flagged
   int faulty_count() const { return __builtin_popcount(faulty_mask_); }
   std::uint64_t readmitted_ = 0;
   double fault_score_[kMaxHalls] = {};
