@@ -1,0 +1,70 @@
+// Accuracy on motors nobody tuned the estimator on: three motors of the population
+// (drivers/sim/population.hpp), each calibrated with the simulator as the ruler
+// from a simulated calibration run, given only its data-sheet values. The five
+// motion scenarios of the population benchmark, as calibrated, and a sensor that
+// dies in the middle of a run. The benchmark (tests/bench/population_bench.cpp)
+// does the same on twenty motors, without a ruler and under temperature too.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+
+#include "../bench/population_eval.hpp"
+#include "config/loader.hpp"
+
+namespace {
+
+using namespace ve;
+
+core::FilterConfig shipped_tuning() {
+  const auto loaded = config::load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/sim.yaml");
+  EXPECT_TRUE(loaded.ok()) << config::to_string(loaded.errors);
+  return loaded.config.axes.at(0).motor.filter;
+}
+
+class PopulationMotor : public ::testing::TestWithParam<std::uint64_t> {};
+
+TEST_P(PopulationMotor, WithARulerMeetsTheTargetsInEveryScenarioAndFlagsADeadSensor) {
+  const auto p = sim::draw_population_motor(GetParam(), shipped_tuning());
+  std::printf("[ motor    ] %s\n", p.summary().c_str());
+  std::vector<core::ReferenceSegment> segments;
+  std::string error;
+  ASSERT_TRUE(bench::record_population_calibration(p, segments, error)) << error;
+  const auto cal = bench::calibrate_population_motor(p, segments, true);
+  ASSERT_TRUE(cal.ok) << cal.error;
+  const auto scenarios = bench::population_scenarios(p.datasheet.travel_m);
+  for (const auto& sc : scenarios) {
+    const auto r = bench::run_population_scenario(p, cal, sc, bench::Condition::as_calibrated, 1000 + GetParam());
+    ASSERT_TRUE(r.ok) << sc.name << ": " << r.error;
+    std::printf("[ figures  ] %-15s position rms %.3f um (bias %+.3f, max %.3f) | velocity rms %.4f mm/s | "
+                "2-sigma %.1f %% / %.1f %% | VALID %.2f %% | largest error while VALID %.3f um\n",
+                sc.name.c_str(), r.err.position_m.rms() * 1e6, r.err.position_m.bias() * 1e6,
+                r.err.position_m.max_abs() * 1e6, r.err.velocity_mps.rms() * 1e3, 100 * r.err.position_coverage(),
+                100 * r.err.velocity_coverage(), 100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    ASSERT_GT(r.samples, 100u) << sc.name;
+    // The target with a ruler for position (RMS, bias included); the
+    // paper's spec for velocity (the 0.1 mm/s target is not met everywhere yet:
+    // see the README's population table).
+    EXPECT_LE(r.err.position_m.rms(), 0.5e-6) << sc.name;
+    EXPECT_LE(r.err.velocity_mps.rms(), 1.7e-3) << sc.name;
+    EXPECT_EQ(r.valid, r.samples) << sc.name << ": VALID for the whole window";
+    EXPECT_EQ(r.flagged, 0u) << sc.name << ": no healthy sensor flagged";
+    EXPECT_LT(r.max_valid_error_m, 5e-6) << sc.name;
+  }
+  // A Hall sensor dies (stuck at its zero-field output) in the middle of a multisine.
+  bench::FaultProbe probe;
+  probe.inject = true;
+  probe.sensor = static_cast<int>(GetParam() % static_cast<std::uint64_t>(p.datasheet.hall.count));
+  probe.at_s = 5.0;
+  const auto r = bench::run_population_scenario(p, cal, scenarios[3], bench::Condition::as_calibrated, 2000 + GetParam(),
+                                                probe);
+  ASSERT_TRUE(r.ok) << r.error;
+  std::printf("[ figures  ] dead sensor %d flagged after %.1f ms\n", probe.sensor, r.detect_s * 1e3);
+  EXPECT_FALSE(r.probe_flagged_before);
+  EXPECT_GE(r.detect_s, 0.0) << "the dead sensor was never flagged";
+  EXPECT_LT(r.detect_s, 0.05);
+}
+
+INSTANTIATE_TEST_SUITE_P(Seeds, PopulationMotor, ::testing::Values(1u, 2u, 3u),
+                         [](const auto& info) { return "motor_" + std::to_string(info.param); });
+
+}  // namespace
