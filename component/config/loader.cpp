@@ -789,6 +789,17 @@ void read_motor(Map m, core::MotorConfig& motor) {
     f.get("steady_exit_cusum", motor.filter.steady_exit_cusum, positive());
     f.get("accel_bias_step_cusum", motor.filter.accel_bias_step_cusum, non_negative());
     f.get("accel_bias_step_std_mps2", motor.filter.accel_bias_step_std_mps2, positive());
+    f.get("valid_position_accuracy_m", motor.filter.valid_position_accuracy_m, positive());
+    f.get("valid_velocity_accuracy_mps", motor.filter.valid_velocity_accuracy_mps, positive());
+    f.get("valid_confidence_sigma", motor.filter.valid_confidence_sigma, schema::in_range(0.5, 10.0));
+    f.get("hall_adaptation", motor.filter.hall_adaptation);
+    f.get("hall_gain_random_walk_per_sqrt_s", motor.filter.hall_gain_random_walk_per_sqrt_s, non_negative());
+    f.get("hall_offset_random_walk_v_per_sqrt_s", motor.filter.hall_offset_random_walk_v_per_sqrt_s, non_negative());
+    f.get("hall_gain_initial_std", motor.filter.hall_gain_initial_std, schema::in_range(0.0, 0.5));
+    f.get("hall_offset_initial_std_v", motor.filter.hall_offset_initial_std_v, schema::in_range(0.0, 1.0));
+    f.get("hall_drift_cusum", motor.filter.hall_drift_cusum, non_negative());
+    f.get("hall_gain_limit", motor.filter.hall_gain_limit, schema::in_range(0.001, 0.5));
+    f.get("hall_offset_limit_v", motor.filter.hall_offset_limit_v, schema::in_range(0.001, 1.0));
   }
 }
 

@@ -116,6 +116,14 @@ struct FilterConfig {
   /// this many sigmas) for this long, over at least half a magnet period of motion.
   double sensor_readmit_s = 0.25;
   double sensor_readmit_sigma = 4.0;
+  /// VALID means: the position and the velocity are within these of the truth at
+  /// this confidence (valid_confidence_sigma times the published sigma), besides
+  /// enough healthy sensors and a filter that follows its fixes. The defaults
+  /// (100 um, 20 mm/s at 2 sigma) only say the estimate has converged; a machine
+  /// sets what its position loop needs.
+  double valid_position_accuracy_m = 100e-6;
+  double valid_velocity_accuracy_mps = 20e-3;
+  double valid_confidence_sigma = 2.0;
   /// Fewest healthy Hall sensors for a VALID position; 0: all but one.
   int min_healthy_halls = 0;
   /// The accelerometer is dead when it repeats exactly the same reading this many

@@ -10,11 +10,9 @@
 namespace ve::core {
 
 namespace {
-// Above these the estimate is still converging (start-up, re-acquisition) and is
-// not fit for a position or velocity loop.
-constexpr double kValidPositionStdM = 50e-6;
-constexpr double kValidVelocityStdMps = 10e-3;
-// A disagreement among the Hall sensors fades from the published sigma over this long.
+// A disagreement among the Hall sensors is averaged over this long for the
+// published sigma, and held (decaying) this long for the blame test.
+constexpr double kDisagreementAverageS = 0.25;
 constexpr double kDisagreementHoldS = 1.0;
 // The Hall adaptation starts learning this long after the filter (re)started ...
 constexpr double kAdaptSettleS = 0.05;
@@ -39,7 +37,8 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
   max_faulty_ = n;
   readmit_samples_ = std::max(1, static_cast<int>(std::lround(config.motor.filter.sensor_readmit_s * config.motor.sample_rate_hz)));
-  disagreement_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
+  disagreement_decay_ = std::exp(-1.0 / (kDisagreementAverageS * config.motor.sample_rate_hz));
+  hold_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
   settle_samples_ = std::max(1, static_cast<int>(std::lround(kAdaptSettleS * config.motor.sample_rate_hz)));
 }
 
@@ -69,7 +68,7 @@ HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, doub
     lo_m = std::min(lo_m, f.position_m);
     hi_m = std::max(hi_m, f.position_m);
     const double d = f.position_m - guess_m;
-    const double score = d * d / (var_pred + disagreement_var_m2_ + f.variance_m2);
+    const double score = d * d / (var_pred + disagreement_hold_m2_ + f.variance_m2);
     if (score <= kBlameAgreementSigma * kBlameAgreementSigma) ++agreeing;
     if (score < best_score) {
       best_score = score;
@@ -359,9 +358,13 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.acceleration_mps2 = x(FusionFilter::kAcc);
   out_.accel_bias_mps2 = x(FusionFilter::kBias);
   out_.accel_scale = x(FusionFilter::kScale);
-  // Disagreement among the sensors that no sensor can be blamed for: a held
-  // maximum that decays over about a second, on top of the filter's own variance.
-  disagreement_var_m2_ = std::max(disagreement_seen_m2_, disagreement_var_m2_ * disagreement_decay_);
+  // Disagreement among the sensors that no sensor can be blamed for: its average
+  // over about the last quarter second (a lasting drift, not one odd sample), on
+  // top of the filter's own variance.
+  disagreement_var_m2_ += (1.0 - disagreement_decay_) * (disagreement_seen_m2_ - disagreement_var_m2_);
+  // The blame test remembers the largest recent one (decaying over about a
+  // second): a sensor is not blamed while the array has just disagreed without one.
+  disagreement_hold_m2_ = std::max(disagreement_seen_m2_, disagreement_hold_m2_ * hold_decay_);
   disagreement_seen_m2_ = 0.0;
   out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_);
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance());
@@ -389,7 +392,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   }
   // One rejected fix is a spike the prediction bridges; two in a row mean the
   // prediction itself may be off, until the filter has followed the Halls again.
-  if (initialised_ && out_.position_std_m < kValidPositionStdM && out_.velocity_std_mps < kValidVelocityStdMps &&
+  // VALID: within the configured accuracy at the configured confidence.
+  const auto& fc = cfg_.motor.filter;
+  if (initialised_ && fc.valid_confidence_sigma * out_.position_std_m < fc.valid_position_accuracy_m &&
+      fc.valid_confidence_sigma * out_.velocity_std_mps < fc.valid_velocity_accuracy_mps &&
       without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_)
     status |= status::kValid;
   out_.status = status;

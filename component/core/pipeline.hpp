@@ -124,8 +124,10 @@ class AxisPipeline {
   int max_faulty_ = 1;       ///< most sensors judged faulty at once (a minority) ...
   std::uint32_t suspect_mask_ = 0;
   double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
-  double disagreement_var_m2_ = 0.0;   ///< held and decaying, added to the published sigma
-  double disagreement_decay_ = 1.0;  ///< ... beyond it, sensors judged faulty stay in, flagged
+  double disagreement_var_m2_ = 0.0;   ///< its recent average, added to the published sigma
+  double disagreement_hold_m2_ = 0.0;  ///< its recent largest, widening the blame test
+  double disagreement_decay_ = 1.0;
+  double hold_decay_ = 1.0;  ///< ... beyond it, sensors judged faulty stay in, flagged
   int faulty_count() const { return __builtin_popcount(faulty_mask_); }
   std::uint64_t readmitted_ = 0;
   double fault_score_[kMaxHalls] = {};
