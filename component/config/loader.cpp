@@ -792,6 +792,8 @@ void read_motor(Map m, core::MotorConfig& motor) {
     f.get("valid_position_accuracy_m", motor.filter.valid_position_accuracy_m, positive());
     f.get("valid_velocity_accuracy_mps", motor.filter.valid_velocity_accuracy_mps, positive());
     f.get("valid_confidence_sigma", motor.filter.valid_confidence_sigma, schema::in_range(0.5, 10.0));
+    f.get("sensor_readmit_s", motor.filter.sensor_readmit_s, schema::in_range(0.001, 60.0));
+    f.get("sensor_readmit_sigma", motor.filter.sensor_readmit_sigma, schema::in_range(1.0, 100.0));
     f.get("hall_adaptation", motor.filter.hall_adaptation);
     f.get("hall_gain_random_walk_per_sqrt_s", motor.filter.hall_gain_random_walk_per_sqrt_s, non_negative());
     f.get("hall_offset_random_walk_v_per_sqrt_s", motor.filter.hall_offset_random_walk_v_per_sqrt_s, non_negative());

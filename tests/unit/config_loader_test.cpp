@@ -850,4 +850,36 @@ TEST(ConfigLoader, SignatureHomingNeedsACalibrationAndOnlyItTakesAStateFile) {
 }
 
 }  // namespace
+TEST(ConfigLoader, ValidAccuracyAndHallAdaptationKeysLoadAndAreChecked) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml",
+                               "motor: a\n"
+                               "filter:\n"
+                               "  valid_position_accuracy_m: 5.0e-6\n"
+                               "  valid_velocity_accuracy_mps: 1.7e-3\n"
+                               "  hall_adaptation: false\n"
+                               "  hall_gain_limit: 0.05\n"
+                               "  sensor_readmit_s: 0.5\n");
+  const auto path = dir.write("machine.yaml", "axes:\n  - {name: x, motor: m.yaml}\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  const auto& f = r.config.axes.at(0).motor.filter;
+  EXPECT_EQ(f.valid_position_accuracy_m, 5.0e-6);
+  EXPECT_EQ(f.valid_velocity_accuracy_mps, 1.7e-3);
+  EXPECT_FALSE(f.hall_adaptation);
+  EXPECT_EQ(f.hall_gain_limit, 0.05);
+  EXPECT_EQ(f.sensor_readmit_s, 0.5);
+
+  const auto bad = dir.write("bad.yaml",
+                             "motor: b\n"
+                             "filter:\n"
+                             "  valid_position_accuracy_m: -1\n"
+                             "  valid_confidence_sigma: 20\n");
+  const auto bad_machine = dir.write("bad-machine.yaml", "axes:\n  - {name: x, motor: bad.yaml}\n");
+  const LoadResult b = load_machine_file(bad_machine);
+  ASSERT_EQ(b.errors.size(), 2u) << to_string(b.errors);
+  expect_error(b, bad, 3, 30, "filter.valid_position_accuracy_m", "must be > 0");
+  expect_error(b, bad, 4, 27, "filter.valid_confidence_sigma", "must be in [0.5, 10]");
+}
+
 }  // namespace ve::config
