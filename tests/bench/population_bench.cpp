@@ -157,6 +157,70 @@ std::string f(const char* format, double x) {
   return buf;
 }
 
+/// One SVG: per motor and condition, the range of position RMS over the five
+/// scenarios (bar) and its median (dot), log scale, with and without a ruler.
+std::string make_svg(const std::vector<MotorResult>& results, std::uint64_t first_seed) {
+  const double W = 1100, x0 = 90, pw = 980, ph = 300, y_title = 28, y1 = 90, y2 = y1 + ph + 70;
+  const double H = y2 + ph + 70;
+  const double lo = -2.0, hi = 4.0;  // log10 um: 0.01 um .. 10 mm; beyond is clipped
+  const char* color[kConditionCount] = {"#2ca02c", "#d62728", "#1f77b4"};
+  std::ostringstream o;
+  o << "<?xml version='1.0' encoding='UTF-8'?>\n<svg xmlns='http://www.w3.org/2000/svg' width='" << W << "' height='"
+    << H << "' viewBox='0 0 " << W << " " << H << "' font-family='DejaVu Sans, Arial, sans-serif'>\n"
+    << "<rect width='100%' height='100%' fill='#fafafa'/>\n"
+    << "<text x='" << W / 2 << "' y='" << y_title
+    << "' font-size='16' font-weight='bold' text-anchor='middle'>Position RMS per motor: range over the five "
+       "scenarios (bar) and median (dot)</text>\n"
+    << "<text x='" << W / 2 << "' y='" << y_title + 20
+    << "' font-size='12' text-anchor='middle' fill='#444'>green: as calibrated, red: +10 K ramp, blue: -10 K step; "
+       "dashed: 0.5 / 1 / 2 um targets; values beyond 10 mm are drawn at the top</text>\n";
+  const std::size_t n = results.size();
+  for (int ruler = 0; ruler < 2; ++ruler) {
+    const double y0 = ruler == 0 ? y1 : y2;
+    auto ypos = [&](double um) {
+      const double l = std::clamp(std::log10(std::max(um, 1e-9)), lo, hi);
+      return y0 + ph - (l - lo) / (hi - lo) * ph;
+    };
+    o << "<text x='" << x0 << "' y='" << y0 - 8 << "' font-size='13' font-weight='bold'>"
+      << (ruler == 0 ? "calibrated with a ruler" : "calibrated without a ruler") << "</text>\n"
+      << "<rect x='" << x0 << "' y='" << y0 << "' width='" << pw << "' height='" << ph
+      << "' fill='white' stroke='#999'/>\n";
+    for (int d = static_cast<int>(lo); d <= static_cast<int>(hi); ++d) {
+      const double y = ypos(std::pow(10.0, d));
+      o << "<line x1='" << x0 << "' y1='" << y << "' x2='" << x0 + pw << "' y2='" << y
+        << "' stroke='#e0e0e0'/>\n<text x='" << x0 - 6 << "' y='" << y + 4
+        << "' font-size='11' text-anchor='end'>" << f("%g", std::pow(10.0, d)) << "</text>\n";
+    }
+    for (double t : {0.5, 1.0, 2.0})
+      o << "<line x1='" << x0 << "' y1='" << ypos(t) << "' x2='" << x0 + pw << "' y2='" << ypos(t)
+        << "' stroke='#888' stroke-dasharray='4,3'/>\n";
+    o << "<text transform='translate(" << x0 - 55 << "," << y0 + ph / 2
+      << ") rotate(-90)' font-size='12' text-anchor='middle'>position RMS [um]</text>\n";
+    for (std::size_t m = 0; m < n; ++m) {
+      const double cx = x0 + (static_cast<double>(m) + 0.5) * pw / static_cast<double>(n);
+      o << "<text x='" << cx << "' y='" << y0 + ph + 16 << "' font-size='11' text-anchor='middle'>"
+        << first_seed + m << "</text>\n";
+      for (int k = 0; k < kConditionCount; ++k) {
+        std::vector<double> v;
+        for (int sc = 0; sc < kScenarioCount; ++sc) {
+          const Cell& c = results[m].cell[ruler][k][sc];
+          if (c.ok) v.push_back(c.pos_rms * 1e6);
+        }
+        if (v.empty()) continue;
+        const double x = cx + (k - 1) * 9.0;
+        const auto [mn, mx] = std::minmax_element(v.begin(), v.end());
+        o << "<line x1='" << x << "' y1='" << ypos(*mn) << "' x2='" << x << "' y2='" << ypos(*mx) << "' stroke='"
+          << color[k] << "' stroke-width='3' opacity='0.6'/>\n<circle cx='" << x << "' cy='" << ypos(median(v))
+          << "' r='3.5' fill='" << color[k] << "'/>\n";
+      }
+    }
+    o << "<text x='" << x0 + pw / 2 << "' y='" << y0 + ph + 34
+      << "' font-size='12' text-anchor='middle'>motor (seed)</text>\n";
+  }
+  o << "</svg>\n";
+  return o.str();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -276,17 +340,21 @@ int main(int argc, char** argv) {
          << f("%.1f", d.empty() ? NAN : *std::max_element(d.begin(), d.end())) << " ms.\n";
     }
   }
-  md << "\n## Motors\n\n";
+  md << "\n![position RMS per motor](population.svg)\n\n## Motors\n\n";
   for (const auto& r : results) md << "* " << r.motor.summary() << (r.note.empty() ? "" : " -- " + r.note) << "\n";
   std::printf("%s", md.str().c_str());
 
   std::error_code ec;
   std::filesystem::create_directories(o.out_dir, ec);
-  const std::string path = o.out_dir + "/population.md";
-  std::ofstream out(path + ".tmp");
-  out << md.str();
-  out.close();
-  std::filesystem::rename(path + ".tmp", path, ec);
-  std::fprintf(stderr, "written: %s\n", path.c_str());
-  return 0;
+  auto write = [&](const std::string& name, const std::string& text) {
+    const std::string path = o.out_dir + "/" + name;
+    std::ofstream out(path + ".tmp");
+    out << text;
+    out.close();
+    std::filesystem::rename(path + ".tmp", path, ec);
+    std::fprintf(stderr, "written: %s%s\n", path.c_str(), ec ? (" FAILED: " + ec.message()).c_str() : "");
+  };
+  write("population.md", md.str());
+  write("population.svg", make_svg(results, o.first_seed));
+  return ec ? 1 : 0;
 }
