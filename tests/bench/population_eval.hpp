@@ -20,6 +20,7 @@
 #include "sim/calibration_run.hpp"
 #include "sim/population.hpp"
 #include "sim/sim_source.hpp"
+#include "../unit/home_truth.hpp"
 
 namespace ve::bench {
 
@@ -122,8 +123,8 @@ struct CalibrationOutcome {
 };
 
 /// Home of a calibration without a ruler (sensor 0's first whole positive
-/// half-wave, the mean of its rising and falling mid-level crossings) located on
-/// the simulator's own noiseless sensor 0 near where the calibration says it is.
+/// half-wave) located on the simulator's own noiseless sensor 0, as the ADC reads
+/// it, near where the calibration says it is (tests/unit/home_truth.hpp).
 inline double home_in_sim_frame(const core::MotorConfig& hardware, const sim::SimConfig& simcfg,
                                 const core::SelfCalibrationReport& rep) {
   sim::SimConfig cfg = simcfg;
@@ -132,34 +133,8 @@ inline double home_in_sim_frame(const core::MotorConfig& hardware, const sim::Si
   cfg.profile.min_m = 0.0;
   cfg.profile.max_m = hardware.travel_m;
   cfg.profile.start_m = 0.5 * hardware.travel_m;
-  sim::SimSource sim(hardware, cfg);
-  if (!sim.ok()) return std::nan("");
-  const double pitch = hardware.magnet_pitch_m;
-  double lo = 1e9, hi = -1e9;
-  for (double x = -pitch; x <= hardware.travel_m + pitch; x += pitch / 400.0) {
-    const double v = sim.hall_voltage_noiseless(0, x);
-    lo = std::min(lo, v), hi = std::max(hi, v);
-  }
-  const double mid = 0.5 * (lo + hi);
-  auto crossing = [&](double near, bool rising) {
-    const double step = pitch / 4000.0;
-    double best = std::nan(""), best_d = 1e9;
-    for (double x = near - 0.25 * pitch; x < near + 0.25 * pitch; x += step) {
-      const double a = sim.hall_voltage_noiseless(0, x) - mid, b = sim.hall_voltage_noiseless(0, x + step) - mid;
-      if ((a < 0) == (b < 0) || (a < 0) != rising) continue;
-      double l = x, h = x + step;
-      for (int k = 0; k < 40; ++k) {
-        const double m = 0.5 * (l + h);
-        ((sim.hall_voltage_noiseless(0, m) - mid < 0) == (a < 0) ? l : h) = m;
-      }
-      const double c = 0.5 * (l + h);
-      if (std::abs(c - near) < best_d) best_d = std::abs(c - near), best = c;
-    }
-    return best;
-  };
-  const double rising = crossing(rep.home_from_sweep_start_m + rep.home_rising_m, true);
-  const double falling = crossing(rep.home_from_sweep_start_m + rep.home_falling_m, false);
-  return 0.5 * (rising + falling);
+  if (!sim::SimSource(hardware, cfg).ok()) return std::nan("");
+  return test::home_truth_m(hardware, cfg, rep);
 }
 
 /// The calibration run a commissioning engineer would record on this motor.
