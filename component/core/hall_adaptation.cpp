@@ -19,7 +19,7 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   gain_limit_ = f.hall_gain_limit;
   offset_limit_v_ = f.hall_offset_limit_v;
   reopen_threshold_ = f.hall_drift_cusum;
-  max_shift_m_ = 1e-3 * motor.magnet_pitch_m;
+  max_shift_m_ = 1e-2 * motor.magnet_pitch_m;
   // Farther from the rails than the largest gain change followed moves a reading.
   rail_guard_v_ = f.hall_gain_limit * motor.hall.amplitude_v;
   reopen_gain_var_ = f.hall_gain_reopen_std * f.hall_gain_reopen_std;
@@ -49,29 +49,44 @@ double HallAdaptation::residual(const RawSample& raw, const HallTable& table, in
   table.evaluate(i, x_m, t, slope);
   const double u = t - mid_v_;
   const double predicted = common_mode_v + mid_v_ + delta_[k] + (1.0 + gamma_[k]) * u;
-  std_v = std::sqrt(noise_var_v2_ + u * u * p_gg_[k] + 2.0 * u * p_gd_[k] + p_dd_[k]);
+  std_v = std::sqrt(noise_var_v2_ + reading_variance(i, t));
   return raw.hall_v[k] - predicted;
 }
 
-double HallAdaptation::position_std_m(int i, double u_v, double slope_v_per_m) const {
-  const auto k = static_cast<std::size_t>(i);
-  const double var_v = std::max(0.0, u_v * u_v * p_gg_[k] + 2.0 * u_v * p_gd_[k] + p_dd_[k]);
-  return std::abs(slope_v_per_m) > 0.0 ? std::sqrt(var_v) / std::abs(slope_v_per_m) : 0.0;
-}
 
 void HallAdaptation::update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
                             std::uint32_t mask, std::uint32_t learn_only_mask) {
   if (!enabled_) return;
-  // Residuals of every usable sensor at the predicted position.
-  std::array<double, kMaxHalls> r{}, u{}, sl{};
-  std::uint32_t usable = 0;
-  double s_sr = 0.0, s_ss = 0.0;
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
     // Random walk: the parameters may have moved since the last sample; unseen for
     // long (at standstill), no more unsure than at start-up.
     if (p_gg_[k] < p0_gg_) p_gg_[k] = std::min(p_gg_[k] + q_gain_, p0_gg_);
     if (p_dd_[k] < p0_dd_) p_dd_[k] = std::min(p_dd_[k] + q_offset_, p0_dd_);
+  }
+  // Residuals of every usable sensor at the predicted position; when the sensors
+  // together place the carriage away from it (the drift not learnt yet, or the
+  // prediction off), once more where they place it, so that what is left is
+  // linear in a small shift.
+  std::array<double, kMaxHalls> r{}, u{}, sl{};
+  std::uint32_t usable = 0;
+  double s_sr = 0.0, s_ss = 0.0;
+  residuals(raw, table, x_m, common_mode_v, mask, learn_only_mask, r, u, sl, usable, s_sr, s_ss);
+  if (s_ss > 0.0 && std::abs(s_sr / s_ss) > 0.1 * max_shift_m_) {
+    const double x1 = x_m + s_sr / s_ss;
+    residuals(raw, table, x1, common_mode_v, mask, learn_only_mask, r, u, sl, usable, s_sr, s_ss);
+  }
+  learn(r, u, sl, usable, s_sr, s_ss, learn_only_mask);
+}
+
+void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
+                               std::uint32_t mask, std::uint32_t learn_only_mask, std::array<double, kMaxHalls>& r,
+                               std::array<double, kMaxHalls>& u, std::array<double, kMaxHalls>& sl,
+                               std::uint32_t& usable, double& s_sr, double& s_ss) const {
+  usable = 0;
+  s_sr = s_ss = 0.0;
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
     if (!(((mask | learn_only_mask) & raw.hall_valid_mask) >> i & 1u)) continue;
     const double y = raw.hall_v[k];
     if (!(y > lo_v_ && y < hi_v_)) continue;
@@ -89,6 +104,11 @@ void HallAdaptation::update(const RawSample& raw, const HallTable& table, double
     s_sr += slope * r[k];
     s_ss += slope * slope;
   }
+}
+
+void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
+                           const std::array<double, kMaxHalls>& sl, std::uint32_t usable, double s_sr, double s_ss,
+                           std::uint32_t learn_only_mask) {
   for (int i = 0; i < sensors_; ++i) {
     if (!(usable >> i & 1u)) continue;
     const auto k = static_cast<std::size_t>(i);

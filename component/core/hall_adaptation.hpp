@@ -71,11 +71,14 @@ class HallAdaptation {
   bool beyond_limits(int i) const { return at_limit_[static_cast<std::size_t>(i)]; }
   /// Times a sensor's parameters were re-opened by the CUSUM (a fast change).
   std::uint64_t reopenings() const { return reopenings_; }
-  /// Standard deviation of the position error the parameters' uncertainty leaves
-  /// in a fix made by one sensor with slope `slope_v_per_m` at regressor u [m].
-  double position_std_m(int i, double u_v, double slope_v_per_m) const;
 
  private:
+  void residuals(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v, std::uint32_t mask,
+                 std::uint32_t learn_only_mask, std::array<double, kMaxHalls>& r, std::array<double, kMaxHalls>& u,
+                 std::array<double, kMaxHalls>& sl, std::uint32_t& usable, double& s_sr, double& s_ss) const;
+  void learn(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
+             const std::array<double, kMaxHalls>& sl, std::uint32_t usable, double s_sr, double s_ss,
+             std::uint32_t learn_only_mask);
   struct Cusum {
     double up = 0.0, down = 0.0;
   };

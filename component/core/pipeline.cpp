@@ -302,10 +302,17 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     // Learn gains and offsets against the prediction (made before this fix, so the
     // fix's own noise is not fed back) once the filter has settled after a start
     // (its start-up transient is not drift), and only from fixes the prediction
-    // agrees with: when the filter has to follow the Halls against its model (an
-    // acceleration step, or anything the accelerometer does not confirm), what it
-    // follows must not be learnt as drift.
-    const bool learn = judge && settled_samples_ >= settle_samples_ && rejected_in_row_ == 0;
+    // agrees with, the sensors' unexplained disagreement allowed for (a drift is
+    // what makes them disagree): when the filter has to follow the Halls against
+    // its model (an acceleration step, or anything the accelerometer does not
+    // confirm), what it follows must not be learnt as drift.
+    bool learn = judge && settled_samples_ >= settle_samples_ && rejected_in_row_ == 0;
+    if (learn) {
+      const double d = fix.position_m - guess;
+      const double var = kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos) + fix.variance_m2 +
+                         disagreement_hold_m2_;
+      learn = d * d <= kAdaptInnovationSigma * kAdaptInnovationSigma * var;
+    }
     if (fix.ok && cfg_.signature_homing) signature_step(corrected_, guess, common_mode, use);
     if (fix.ok) {
       without_fix_in_row_ = 0;
@@ -313,9 +320,15 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       out_.hall_std_m = std::sqrt(fix.variance_m2);
       if (fix.out_of_table) status |= status::kOutOfTravel;
       const double gate = cfg_.motor.filter.gate_sigma;
-      out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix.variance_m2, gate, applied);
-      if (learn && applied && std::abs(out_.hall_innovation_sigma) < kAdaptInnovationSigma) {
-        adapt_.update(sample, hall_.table(), guess, common_mode, use & ~outlier, faulty_mask_);
+      // The gate allows for the sensors' recent unexplained disagreement (a drift
+      // moves the fixes by more than their noise): such fixes are taken, not
+      // rejected until the filter has to jump to them.
+      const double fix_var = fix.variance_m2;
+      const double wide_gate = gate * std::sqrt(1.0 + disagreement_var_m2_ / fix.variance_m2);
+      out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix_var, wide_gate, applied);
+      if (learn) {
+        // An outlier nobody can be blamed for (a drift) is exactly what must learn.
+        adapt_.update(sample, hall_.table(), guess, common_mode, use & ~(ambiguous ? 0u : outlier), faulty_mask_);
         // ... and see whether a faulty sensor agrees again.
         if (faulty_mask_) readmission_step(sample, guess, common_mode);
       }
@@ -333,7 +346,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
         // only position and velocity are widened.
         const double acc_var = accel_ok ? 4.0 * nu * nu / (span_s * span_s * span_s * span_s) : 0.0;
         kf_.inflate(nu * nu, 4.0 * nu * nu / (span_s * span_s), acc_var);
-        out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix.variance_m2, 0.0, applied);
+        out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix_var, 0.0, applied);
         rejected_in_row_ = 0;
       }
     } else if (++without_fix_in_row_ >= cfg_.max_samples_without_fix) {
