@@ -35,7 +35,6 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   const int n = std::min(config.motor.hall.count, kMaxHalls);
   all_halls_mask_ = (1u << n) - 1u;
   min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
-  max_faulty_ = n;
   readmit_samples_ = std::max(1, static_cast<int>(std::lround(config.motor.filter.sensor_readmit_s * config.motor.sample_rate_hz)));
   disagreement_decay_ = std::exp(-1.0 / (kDisagreementAverageS * config.motor.sample_rate_hz));
   hold_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
@@ -109,18 +108,10 @@ void AxisPipeline::update_hall_health(std::uint32_t used_mask, std::uint32_t out
     if (!(used_mask & bit)) continue;
     double& score = fault_score_[i];
     score += alpha * (((outlier_mask & bit) ? 1.0 : 0.0) - score);
-    // A gain or offset beyond anything slow drift explains is a fault as well. At
-    // most a minority of the sensors is left out: when most disagree, it is the
-    // array's model that is off (a common drift), which the fix's chi-square and
-    // the status show, and leaving sensors out would only lose the position.
-    const bool fault = score > f.sensor_fault_on || adapt_.beyond_limits(i);
-    if (fault && faulty_count() < max_faulty_) {
+    // A gain or offset beyond anything slow drift explains is a fault as well.
+    if (score > f.sensor_fault_on || adapt_.beyond_limits(i)) {
       faulty_mask_ |= bit;
       readmit_streak_[i] = 0;
-    } else if (fault) {
-      suspect_mask_ |= bit;  // kept in the fix, but the position is not VALID
-    } else if (score < 0.5 * f.sensor_fault_on) {
-      suspect_mask_ &= ~bit;
     }
   }
 }
@@ -390,7 +381,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
 
   // Hall health: missing samples and sensors judged faulty.
   const std::uint32_t missing = all_halls_mask_ & ~sample.hall_valid_mask;
-  const std::uint32_t flagged = missing | faulty_mask_ | suspect_mask_;
+  const std::uint32_t flagged = missing | faulty_mask_;
   out_.hall_faulty_mask = faulty_mask_;
   status |= flagged << status::kHallFaultShift;
   int healthy = 0;

@@ -121,14 +121,11 @@ class AxisPipeline {
   int readmit_samples_ = 1;
   int settled_samples_ = 0;  ///< samples since the filter last (re)acquired
   int settle_samples_ = 1;   ///< ... before the Hall adaptation learns
-  int max_faulty_ = 1;       ///< most sensors judged faulty at once (a minority) ...
-  std::uint32_t suspect_mask_ = 0;
   double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
   double disagreement_var_m2_ = 0.0;   ///< its recent average, added to the published sigma
   double disagreement_hold_m2_ = 0.0;  ///< its recent largest, widening the blame test
   double disagreement_decay_ = 1.0;
-  double hold_decay_ = 1.0;  ///< ... beyond it, sensors judged faulty stay in, flagged
-  int faulty_count() const { return __builtin_popcount(faulty_mask_); }
+  double hold_decay_ = 1.0;
   std::uint64_t readmitted_ = 0;
   double fault_score_[kMaxHalls] = {};
   std::uint32_t faulty_mask_ = 0;
