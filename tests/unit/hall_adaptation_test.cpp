@@ -37,12 +37,7 @@ AdaptationRun run(double rise_k, bool dead_sensor = false) {
   }
   ve::sim::SimSource sim(r.axis.motor, cfg);
   EXPECT_TRUE(sim.ok()) << sim.last_error();
-  ve::core::PipelineConfig pc;
-  pc.motor = r.axis.motor;
-  pc.sensors = r.cal.model;
-  pc.calibrated = true;
-  pc.start_position_m = cfg.profile.start_m;
-  ve::core::AxisPipeline pipeline(pc, r.cal.table);
+  ve::core::AxisPipeline pipeline = ve::test::calibrated_pipeline(r, cfg.profile.start_m);
   ve::core::RawSample s;
   double sum = 0.0;
   long n = 0;

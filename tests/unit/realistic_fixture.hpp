@@ -11,6 +11,7 @@
 
 #include "config/loader.hpp"
 #include "core/identification.hpp"
+#include "core/pipeline.hpp"
 #include "sim/calibration_run.hpp"
 
 namespace ve::test {
@@ -34,6 +35,16 @@ inline const Realistic& realistic(const std::string& machine_file) {
   EXPECT_TRUE(ve::sim::record_calibration_run(r.axis.motor, r.axis.driver.sim, {}, segments, error)) << error;
   EXPECT_TRUE(ve::core::identify_with_reference(r.axis.motor, segments, {}, r.cal, r.report, error)) << error;
   return cache.emplace(machine_file, std::move(r)).first->second;
+}
+
+/// The estimator of a realistic machine on its calibration, started at `start_m`.
+inline ve::core::AxisPipeline calibrated_pipeline(const Realistic& r, double start_m) {
+  ve::core::PipelineConfig pc;
+  pc.motor = r.axis.motor;
+  pc.sensors = r.cal.model;
+  pc.calibrated = true;
+  pc.start_position_m = start_m;
+  return ve::core::AxisPipeline(pc, r.cal.table);
 }
 
 }  // namespace ve::test

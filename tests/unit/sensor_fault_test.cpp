@@ -39,12 +39,7 @@ Outcome run(std::initializer_list<FaultConfig> faults, std::uint32_t expect_flag
   for (const auto& f : faults) cfg.faults[cfg.fault_count++] = f;
   ve::sim::SimSource sim(r.axis.motor, cfg);
   EXPECT_TRUE(sim.ok()) << sim.last_error();
-  ve::core::PipelineConfig pc;
-  pc.motor = r.axis.motor;
-  pc.sensors = r.cal.model;
-  pc.calibrated = true;
-  pc.start_position_m = cfg.profile.start_m;
-  ve::core::AxisPipeline pipeline(pc, r.cal.table);
+  ve::core::AxisPipeline pipeline = ve::test::calibrated_pipeline(r, cfg.profile.start_m);
   Outcome o;
   double sv_before = 0, sv_after = 0;
   int n_before = 0, n_after = 0;
@@ -175,12 +170,7 @@ TEST(AccelFault, NoFlagWithoutAFault) {
   cfg.noise_seed = 77;
   ve::sim::SimSource sim(r.axis.motor, cfg);
   ASSERT_TRUE(sim.ok()) << sim.last_error();
-  ve::core::PipelineConfig pc;
-  pc.motor = r.axis.motor;
-  pc.sensors = r.cal.model;
-  pc.calibrated = true;
-  pc.start_position_m = cfg.profile.start_m;
-  ve::core::AxisPipeline pipeline(pc, r.cal.table);
+  ve::core::AxisPipeline pipeline = ve::test::calibrated_pipeline(r, cfg.profile.start_m);
   ve::core::RawSample s;
   std::uint64_t flagged = 0;
   while (sim.read(s) == ve::drivers::ReadStatus::ok) {
