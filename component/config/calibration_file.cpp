@@ -31,6 +31,10 @@ constexpr const char* kOtherMotor = "other motor: ";
 constexpr const char* kLayout = "incompatible sensor layout: ";
 constexpr const char* kVersion = "unsupported version: ";
 constexpr const char* kNotCalibration = "not a calibration file: ";
+/// A well-formed file (its checksum may even be right) whose table the estimator
+/// cannot use for this motor.
+constexpr const char* kUnusable = "unusable table: ";
+constexpr const char* kUnreadable = "cannot read calibration file: ";
 
 bool starts_with(const std::string& s, const char* prefix) { return s.rfind(prefix, 0) == 0; }
 
@@ -38,10 +42,76 @@ bool starts_with(const std::string& s, const char* prefix) { return s.rfind(pref
 /// decimals so a text round trip gives back the same checksum.
 constexpr double kVoltUnit = 1e-6;
 
-void read_table(Map t, core::HallTable& table, int hall_count) {
-  t.require("start_m", table.start_m);
-  t.require("step_m", table.step_m, schema::greater_than(0.0));
-  t.require("points", table.points, schema::in_range(4, 100000000));
+/// Most grid points per sensor: a 100 m travel at 1 mm per 10 points, or the longest
+/// motor the motor file allows at its finest grid; keeps a damaged `points` from
+/// asking for gigabytes.
+constexpr int kMaxTablePoints = 10000000;
+/// Grid step limits as fractions of the magnet pitch: coarser than pitch / 8 the cubic
+/// interpolation is off by more than 1 % of a period; finer than pitch / 4096 it holds
+/// nothing a 12-bit ADC can resolve and costs memory (the programs write pitch / 256).
+constexpr double kMinPointsPerPitch = 8.0;
+constexpr double kMaxPointsPerPitch = 4096.0;
+/// A table row must vary by at least this much to carry a position [V].
+constexpr double kMinRowSpanV = 1e-3;
+/// Grid coverage tolerance [m]: the written grids reach the ends of the travel exactly.
+constexpr double kCoverSlackM = 1e-9;
+
+/// What makes a table usable by the estimator for `motor`, beyond its checksum: a grid
+/// step that fits the magnet pitch, a grid that covers the whole travel, values a
+/// sensor behind this ADC can produce, and rows that vary. Every problem is reported
+/// at the key it concerns.
+void check_table(Map& t, const Value& sensors, const core::HallTable& table, const core::MotorConfig& motor,
+                 bool step_ok, bool start_ok, bool points_ok) {
+  const double pitch = motor.magnet_pitch_m;
+  if (step_ok && pitch > 0.0) {
+    const double lo = pitch / kMaxPointsPerPitch, hi = pitch / kMinPointsPerPitch;
+    if (!(table.step_m >= lo && table.step_m <= hi))
+      t.value("step_m").error(kUnusable + schema::out_of_range(table.step_m, lo, hi, "m") + " (magnet pitch " +
+                              schema::compact_number(pitch) + " m / 4096 .. / 8): " +
+                              (table.step_m < lo ? "finer than any sensor resolves" : "too coarse to interpolate"));
+  }
+  if (step_ok && start_ok && points_ok && motor.travel_m > 0.0) {
+    const double end = table.start_m + table.step_m * (table.points - 1);
+    if (table.start_m > kCoverSlackM || end < motor.travel_m - kCoverSlackM) {
+      const std::string covered = "[" + schema::compact_number(table.start_m) + ", " + schema::compact_number(end) + "]";
+      const std::string travel = "[0, " + schema::compact_number(motor.travel_m) + "]";
+      if (table.start_m > kCoverSlackM)
+        t.value("start_m").error(std::string(kUnusable) + "the grid covers " + covered + " m, not the motor's travel " + travel +
+                                 " m: start_m must be <= 0");
+      else
+        t.value("points").error(std::string(kUnusable) + "the grid covers " + covered + " m, not the motor's travel " + travel +
+                                " m: points * step_m falls short by " +
+                                schema::compact_number(motor.travel_m - end) + " m");
+    }
+  }
+  if (!table.valid()) return;
+  const double span = motor.adc.max_v - motor.adc.min_v;
+  const double vlo = motor.adc.min_v - span, vhi = motor.adc.max_v + span;
+  for (int s = 0; s < table.sensors; ++s) {
+    const double* row = table.v.data() + static_cast<std::size_t>(s) * static_cast<std::size_t>(table.points);
+    const auto [mn, mx] = std::minmax_element(row, row + table.points);
+    const Value r = sensors.at(static_cast<std::size_t>(s));
+    for (int k = 0; k < table.points; ++k) {
+      if (!(row[k] >= vlo && row[k] <= vhi)) {
+        r.error(std::string(kUnusable) + "value " + std::to_string(k) + ": " + schema::out_of_range(row[k], vlo, vhi, "V") +
+                " (the ADC range [" + schema::compact_number(motor.adc.min_v) + ", " +
+                schema::compact_number(motor.adc.max_v) + "] V widened by its span): not a Hall reading");
+        break;
+      }
+    }
+    if (*mx - *mn < kMinRowSpanV)
+      r.error(std::string(kUnusable) + "the row varies by " + schema::compact_number(*mx - *mn) + " V over the travel (less than " +
+              schema::compact_number(kMinRowSpanV) + " V): it carries no position");
+  }
+}
+
+void read_table(Map t, core::HallTable& table, int hall_count, const core::MotorConfig& motor) {
+  const bool start_ok = t.require("start_m", table.start_m, schema::in_range(-1000.0, 1000.0, "m"));
+  const bool step_ok = t.require("step_m", table.step_m, schema::Check<double>([](const double& x) {
+    return x > 0.0 && x <= 1.0 ? std::string()
+                               : schema::compact_number(x) + " out of range (0, 1] m: the grid must increase along the travel";
+  }));
+  const bool points_ok = t.require("points", table.points, schema::in_range(4, kMaxTablePoints, "points"));
   const Value sensors = t.required("sensors");
   if (!sensors.present()) return;
   if (!sensors.is_sequence()) {
@@ -55,22 +125,26 @@ void read_table(Map t, core::HallTable& table, int hall_count) {
   // Rows are checked before the table is allocated: a damaged `points` must
   // not make us allocate gigabytes.
   std::vector<std::vector<double>> values(rows);
-  bool rows_ok = true;
+  bool rows_ok = points_ok;
   for (std::size_t s = 0; s < rows; ++s) {
     const Value r = sensors.at(s);
     if (!r.as(values[s])) {
       rows_ok = false;
-    } else if (values[s].size() != static_cast<std::size_t>(table.points)) {
+    } else if (points_ok && values[s].size() != static_cast<std::size_t>(table.points)) {
       r.error(std::string(kCorrupt) + "sensor row has " + std::to_string(values[s].size()) +
               " values but points is " + std::to_string(table.points));
       rows_ok = false;
     }
   }
-  if (!rows_ok) return;
-  table.sensors = static_cast<int>(rows);
-  table.v.clear();
-  table.v.reserve(rows * static_cast<std::size_t>(table.points));
-  for (const auto& row : values) table.v.insert(table.v.end(), row.begin(), row.end());
+  // A table whose row count is not the sensor count is not filled in: it could not be
+  // used, and its checksum would only repeat that the file is damaged.
+  if (rows_ok && rows > 0 && (hall_count <= 0 || rows == static_cast<std::size_t>(hall_count))) {
+    table.sensors = static_cast<int>(rows);
+    table.v.clear();
+    table.v.reserve(rows * static_cast<std::size_t>(table.points));
+    for (const auto& row : values) table.v.insert(table.v.end(), row.begin(), row.end());
+  }
+  check_table(t, sensors, table, motor, step_ok, start_ok, points_ok);
 }
 
 void read_calibration(Map root, const core::MotorConfig& expected, core::Calibration& cal, std::size_t first_error,
@@ -105,8 +179,8 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
   const Value pitch = root.required("magnet_pitch_m");
   if (pitch.as(info.magnet_pitch_m) &&
       std::abs(info.magnet_pitch_m - expected.magnet_pitch_m) > 1e-9 * std::abs(expected.magnet_pitch_m))
-    pitch.error(std::string(kOtherMotor) + "made for a magnet pitch of " + schema::format_number(info.magnet_pitch_m) +
-                " m, the motor has " + schema::format_number(expected.magnet_pitch_m) + " m");
+    pitch.error(std::string(kOtherMotor) + "made for a magnet pitch of " + schema::compact_number(info.magnet_pitch_m) +
+                " m, the motor has " + schema::compact_number(expected.magnet_pitch_m) + " m");
   root.get("method", info.method);
   root.get("created_utc", info.created_utc);
   const Value id = root.required("id");
@@ -115,18 +189,19 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
   {
     // Absent: ideal sensors (no delays, no coil field, unit scale, no bias).
     Map m = root.map("sensor_model");
-    m.get("hall_delay_s", cal.model.hall_delay_s, schema::in_range(0.0, 0.01));
-    m.get("coil_field_v_per_mps2", cal.model.coil_field_v_per_mps2, schema::in_range(-1.0, 1.0));
-    m.get("accel_delay_s", cal.model.accel_delay_s, schema::in_range(0.0, 0.01));
-    m.get("accel_bias_mps2", cal.model.accel_bias_mps2, schema::in_range(-100.0, 100.0));
-    m.get("accel_scale", cal.model.accel_scale, schema::in_range(0.5, 2.0));
-    m.get("frame_vibration_hz", cal.model.frame_vibration_hz, schema::in_range(0.0, 10000.0));
-    m.get("frame_vibration_mps2", cal.model.frame_vibration_mps2, schema::in_range(0.0, 1000.0));
+    m.get("hall_delay_s", cal.model.hall_delay_s, schema::in_range(0.0, 0.01, "s"));
+    m.get("coil_field_v_per_mps2", cal.model.coil_field_v_per_mps2, schema::in_range(-1.0, 1.0, "V/(m/s^2)"));
+    m.get("accel_delay_s", cal.model.accel_delay_s, schema::in_range(0.0, 0.01, "s"));
+    m.get("accel_bias_mps2", cal.model.accel_bias_mps2, schema::in_range(-100.0, 100.0, "m/s^2"));
+    m.get("accel_scale", cal.model.accel_scale, schema::in_range(0.5, 2.0, ""));
+    m.get("frame_vibration_hz", cal.model.frame_vibration_hz, schema::in_range(0.0, 10000.0, "Hz"));
+    m.get("frame_vibration_mps2", cal.model.frame_vibration_mps2, schema::in_range(0.0, 1000.0, "m/s^2"));
   }
-  const std::size_t before_table = errors.size();
   const Value table = root.required("table");
-  if (table.present()) read_table(table.as_map(), cal.table, info.hall_count);
-  if (errors.size() == before_table && id.present() && cal.table.valid()) {
+  if (table.present()) read_table(table.as_map(), cal.table, info.hall_count, expected);
+  // The checksum is compared whenever the table could be read, also when it is
+  // unusable for this motor: both problems are reported.
+  if (id.present() && cal.table.valid()) {
     const std::string sum = core::calibration_checksum(cal);
     if (sum != info.id)
       id.error(std::string(kCorrupt) + "the calibration's checksum is " + sum + " but id is " + info.id +
@@ -216,8 +291,8 @@ void stamp_calibration(core::Calibration& cal) {
 CalibrationLoad load_calibration_file(const std::string& path, const core::MotorConfig& expected) {
   CalibrationLoad r;
   std::string text, why;
-  if (!schema::read_text_file(path, text, why)) {
-    r.errors.push_back({path, 0, 0, "", "cannot read calibration file: " + why});
+  if (!schema::read_text_file(path, text, why, schema::kMaxCalibrationFileBytes)) {
+    r.errors.push_back({path, 0, 0, "", kUnreadable + why});
     return r;
   }
   {
@@ -229,7 +304,8 @@ CalibrationLoad load_calibration_file(const std::string& path, const core::Motor
   for (auto& e : r.errors)
     if (!starts_with(e.message, kCorrupt) && !starts_with(e.message, kOtherMotor) &&
         !starts_with(e.message, kLayout) && !starts_with(e.message, kVersion) &&
-        !starts_with(e.message, kNotCalibration))
+        !starts_with(e.message, kNotCalibration) && !starts_with(e.message, kUnusable) &&
+        !starts_with(e.message, kUnreadable))
       e.message = kCorrupt + e.message;
   schema::sort_errors(r.errors);
   return r;

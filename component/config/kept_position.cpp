@@ -12,6 +12,7 @@
 
 #include "config/atomic_file.hpp"
 #include "config/calibration_file.hpp"
+#include "config/loader.hpp"
 
 namespace ve::config {
 
@@ -28,17 +29,17 @@ bool write_kept_position(const std::string& path, const KeptPosition& k, std::st
 }
 
 KeptRead take_kept_position(const std::string& path, const std::string& axis, const std::string& motor,
-                            const std::string& calibration_id, KeptPosition& out, std::string& why) {
+                            const std::string& calibration_id, KeptPosition& out, std::string& why,
+                            double travel_m) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec) && !ec) return KeptRead::none;
-  std::ifstream in(path);
-  if (!in) {
-    why = path + ": cannot read: " + std::strerror(errno);
+  // Bounded, regular files only: a FIFO or a device named as the state file must not
+  // hang or exhaust the start-up (it is not removed either: it is not ours).
+  std::string text;
+  if (!schema::read_text_file(path, text, why)) {
+    why = path + ": cannot read: " + why;
     return KeptRead::refused;
   }
-  std::stringstream text;
-  text << in.rdbuf();
-  in.close();
   // Used once: whatever it says, the next start must not see it again.
   if (std::remove(path.c_str()) != 0) {
     why = path + ": cannot remove it after reading (" + std::strerror(errno) +
@@ -46,7 +47,12 @@ KeptRead take_kept_position(const std::string& path, const std::string& axis, co
     return KeptRead::refused;
   }
   try {
-    const YAML::Node root = YAML::Load(text.str());
+    const std::vector<YAML::Node> docs = YAML::LoadAll(text);
+    if (docs.size() > 1) {
+      why = path + ": a second YAML document (after '---'): not a kept position written by this program";
+      return KeptRead::refused;
+    }
+    const YAML::Node root = docs.empty() ? YAML::Node() : docs.front();
     if (!root.IsMap()) {
       why = path + ": not a mapping";
       return KeptRead::refused;
@@ -72,6 +78,11 @@ KeptRead take_kept_position(const std::string& path, const std::string& axis, co
       why = path + ":" + std::to_string(root["position_m"].Mark().line + 1) + ": position_m is not a number";
       return KeptRead::refused;
     }
+    if (travel_m > 0.0 && !(out.position_m >= 0.0 && out.position_m <= travel_m)) {
+      why = path + ":" + std::to_string(root["position_m"].Mark().line + 1) +
+            ": position_m: " + schema::out_of_range(out.position_m, 0.0, travel_m, "m") + " (the motor's travel)";
+      return KeptRead::refused;
+    }
     if (out.axis != axis) {
       why = path + ": kept for axis '" + out.axis + "', not '" + axis + "'";
       return KeptRead::refused;
@@ -86,6 +97,9 @@ KeptRead take_kept_position(const std::string& path, const std::string& axis, co
     }
   } catch (const YAML::Exception& e) {
     why = path + ":" + std::to_string(e.mark.line + 1) + ": " + e.msg;
+    return KeptRead::refused;
+  } catch (const std::exception& e) {
+    why = path + ": " + e.what();
     return KeptRead::refused;
   }
   return KeptRead::ok;

@@ -25,8 +25,10 @@ enum class KeptRead { none, ok, refused };
 
 /// Reads `path` and removes it. `none`: there is no such file. `refused`: the file is
 /// unreadable, malformed or for another axis, motor or calibration; `why` says which
-/// (file, line and field where there is one). `ok`: `out` holds it.
+/// (file, line and field where there is one). `ok`: `out` holds it. With travel_m > 0 a
+/// position outside [0, travel_m] is refused too. Every `why` starts with the path.
 KeptRead take_kept_position(const std::string& path, const std::string& axis, const std::string& motor,
-                            const std::string& calibration_id, KeptPosition& out, std::string& why);
+                            const std::string& calibration_id, KeptPosition& out, std::string& why,
+                            double travel_m = 0.0);
 
 }  // namespace ve::config

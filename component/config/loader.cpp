@@ -11,6 +11,7 @@
 #include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <limits>
@@ -36,12 +37,20 @@ Pos to_pos(const YAML::Mark& m) {
 /// Quoted scalars are strings even when they look like numbers: `"5"` is not 5.
 bool is_quoted(const YAML::Node& n) { return n.Tag() == "!" || n.Tag() == "tag:yaml.org,2002:str"; }
 
+/// A scalar as a message shows it: at most 40 characters, so a 400-digit number or a
+/// pasted table does not flood the terminal.
+std::string shown(const std::string& s) {
+  constexpr std::size_t kMax = 40;
+  if (s.size() <= kMax) return s;
+  return s.substr(0, kMax) + "... (" + std::to_string(s.size()) + " characters)";
+}
+
 std::string describe_node(const YAML::Node& n) {
   switch (n.Type()) {
     case YAML::NodeType::Null:
       return "nothing (null)";
     case YAML::NodeType::Scalar:
-      return is_quoted(n) ? "the string \"" + n.Scalar() + "\"" : "'" + n.Scalar() + "'";
+      return is_quoted(n) ? "the string \"" + shown(n.Scalar()) + "\"" : "'" + shown(n.Scalar()) + "'";
     case YAML::NodeType::Sequence:
       return "a sequence";
     case YAML::NodeType::Map:
@@ -140,15 +149,47 @@ std::string format_number(double x) {
   return std::string(buf, r.ptr);
 }
 
+std::string compact_number(double x) {
+  if (std::isnan(x)) return "nan";
+  if (std::isinf(x)) return x > 0 ? "inf" : "-inf";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.6g", x);
+  return buf;
+}
+
+std::string compact_against(double x, double lo, double hi) {
+  std::string s = compact_number(x);
+  for (int digits = 7; digits <= 17 && ((x != lo && s == compact_number(lo)) || (x != hi && s == compact_number(hi)));
+       ++digits) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.*g", digits, x);
+    s = buf;
+  }
+  return s;
+}
+
+std::string out_of_range(double x, double lo, double hi, std::string_view unit) {
+  std::string s = compact_against(x, lo, hi) + " out of range [" + compact_number(lo) + ", " + compact_number(hi) + "]";
+  if (!unit.empty()) {
+    s += ' ';
+    s += unit;
+  }
+  return s;
+}
+
 Check<double> greater_than(double lo) {
   return [lo](const double& x) {
-    return x > lo ? std::string() : "must be > " + format_number(lo) + ", got " + format_number(x);
+    return x > lo ? std::string()
+                  : compact_against(x, lo, lo) + " out of range (" + compact_number(lo) + ", inf): must be > " +
+                        compact_number(lo);
   };
 }
 
 Check<double> at_least(double lo) {
   return [lo](const double& x) {
-    return x >= lo ? std::string() : "must be >= " + format_number(lo) + ", got " + format_number(x);
+    return x >= lo ? std::string()
+                   : compact_against(x, lo, lo) + " out of range [" + compact_number(lo) + ", inf): must be >= " +
+                         compact_number(lo);
   };
 }
 
@@ -164,9 +205,44 @@ Document::Document(std::string file, std::vector<ConfigError>& errors)
     : file_(std::move(file)), errors_(errors), impl_(std::make_unique<Impl>()) {}
 Document::~Document() = default;
 
+namespace {
+
+/// Where the document after the first one starts: its root's position, or for an
+/// empty one the line of its "---" marker.
+Pos second_document_pos(const std::string& text, const YAML::Node& second) {
+  const Pos p = second.IsNull() ? Pos{} : to_pos(second.Mark());
+  if (p.line) return p;
+  // Markers at the start of a line; the first one may open the first document.
+  std::vector<int> markers;
+  bool content_before = false;
+  int line = 1;
+  for (std::size_t i = 0; i < text.size();) {
+    const std::size_t end = std::min(text.find('\n', i), text.size());
+    const std::string_view l(text.data() + i, end - i);
+    if (l.substr(0, 3) == "---" && (l.size() == 3 || l[3] == ' ' || l[3] == '\t' || l[3] == '\r')) {
+      if (content_before || !markers.empty()) return {line, 1};
+      markers.push_back(line);
+    } else if (!l.empty() && l[0] != '#' && l.find_first_not_of(" \t\r") != std::string_view::npos) {
+      content_before = true;
+    }
+    i = end + 1;
+    ++line;
+  }
+  return {line > 1 ? line - 1 : 1, 1};
+}
+
+}  // namespace
+
 bool Document::parse(const std::string& text) {
   try {
-    impl_->root = YAML::Load(text);
+    std::vector<YAML::Node> docs = YAML::LoadAll(text);
+    if (docs.size() > 1) {
+      error(second_document_pos(text, docs[1]), "",
+            "a second YAML document (after '---'): a file holds one document; remove the '---' line or split the "
+            "file");
+      return false;
+    }
+    impl_->root = docs.empty() ? YAML::Node() : docs.front();
     impl_->parsed = true;
     return true;
   } catch (const YAML::ParserException& e) {
@@ -233,12 +309,12 @@ bool convert_integer(const Value& v, const YAML::Node& n, T& out, const Check<T>
     case Parsed::ok:
       break;
     case Parsed::out_of_range:
-      v.error("must be in [" + std::to_string(std::numeric_limits<T>::min()) + ", " +
-              std::to_string(std::numeric_limits<T>::max()) + "], got " + n.Scalar());
+      v.error(shown(n.Scalar()) + " out of range [" + std::to_string(std::numeric_limits<T>::min()) + ", " +
+              std::to_string(std::numeric_limits<T>::max()) + "]");
       return false;
     case Parsed::bad: {
       double d;
-      v.error(parse_double(n.Scalar(), d) == Parsed::ok ? "expected an integer, got " + n.Scalar()
+      v.error(parse_double(n.Scalar(), d) == Parsed::ok ? "expected an integer, got " + shown(n.Scalar())
                                                         : "expected an integer, got " + describe_node(n));
       return false;
     }
@@ -266,7 +342,7 @@ bool convert_double(Document& doc, const YAML::Node& n, const std::string& path,
     case Parsed::ok:
       break;
     case Parsed::out_of_range:
-      doc.error(pos, path, "number out of range: " + n.Scalar());
+      doc.error(pos, path, "number out of range: " + shown(n.Scalar()) + " is beyond +-1.8e308");
       return false;
     case Parsed::bad:
       doc.error(pos, path, "expected a number, got " + describe_node(n));
@@ -570,18 +646,78 @@ Map Document::root() {
 
 // ---------------------------------------------------------------------------
 
-bool read_text_file(const std::string& path, std::string& text, std::string& error) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+namespace {
+
+const char* file_kind(mode_t mode) {
+  if (S_ISDIR(mode)) return "a directory";
+  if (S_ISFIFO(mode)) return "a FIFO";
+  if (S_ISCHR(mode)) return "a character device";
+  if (S_ISBLK(mode)) return "a block device";
+  if (S_ISSOCK(mode)) return "a socket";
+  return "not a regular file";
+}
+
+std::string size_text(std::size_t bytes) {
+  if (bytes >= (1u << 20) && bytes % (1u << 20) == 0) return std::to_string(bytes >> 20) + " MiB";
+  return std::to_string(bytes) + " bytes";
+}
+
+}  // namespace
+
+int regular_file_readable(const std::string& path, std::string& error) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) {
+    const int e = errno;
+    error = std::strerror(e);
+    return e;
+  }
+  if (S_ISDIR(st.st_mode)) {
+    error = std::strerror(EISDIR);
+    return EISDIR;
+  }
+  if (!S_ISREG(st.st_mode)) {
+    error = std::string("not a regular file (") + file_kind(st.st_mode) + ")";
+    return EINVAL;
+  }
+  if (::access(path.c_str(), R_OK) != 0) {
+    const int e = errno;
+    error = std::strerror(e);
+    return e;
+  }
+  return 0;
+}
+
+bool read_text_file(const std::string& path, std::string& text, std::string& error, std::size_t max_bytes) {
+  // O_NONBLOCK: opening a FIFO without a writer would otherwise wait forever.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) {
     error = std::strerror(errno);
     return false;
   }
   struct stat st {};
-  if (::fstat(fd, &st) == 0 && S_ISDIR(st.st_mode)) {
+  if (::fstat(fd, &st) != 0) {
+    error = std::strerror(errno);
+    ::close(fd);
+    return false;
+  }
+  if (S_ISDIR(st.st_mode)) {
     ::close(fd);
     error = std::strerror(EISDIR);
     return false;
   }
+  if (!S_ISREG(st.st_mode)) {
+    ::close(fd);
+    error = std::string("not a regular file (") + file_kind(st.st_mode) + ")";
+    return false;
+  }
+  if (st.st_size > 0 && static_cast<std::uint64_t>(st.st_size) > max_bytes) {
+    ::close(fd);
+    error = "too large: " + std::to_string(st.st_size) + " bytes, at most " + size_text(max_bytes) +
+            " are read from a file of this kind";
+    return false;
+  }
+  const int flags = ::fcntl(fd, F_GETFL);
+  if (flags >= 0) ::fcntl(fd, F_SETFL, flags & ~O_NONBLOCK);
   std::string out;
   if (st.st_size > 0) out.reserve(static_cast<std::size_t>(st.st_size));
   char buf[65536];
@@ -595,6 +731,11 @@ bool read_text_file(const std::string& path, std::string& text, std::string& err
       return false;
     }
     out.append(buf, static_cast<std::size_t>(n));
+    if (out.size() > max_bytes) {  // a file that grows while it is read
+      ::close(fd);
+      error = "too large: more than " + size_text(max_bytes) + " (the file grew while it was read)";
+      return false;
+    }
   }
   ::close(fd);
   text = std::move(out);
@@ -662,16 +803,7 @@ class DiskFiles final : public Files {
     return schema::read_text_file(path, text, error);
   }
   int readable(const std::string& path, std::string& error) const override {
-    struct stat st {};
-    int e = 0;
-    if (::stat(path.c_str(), &st) != 0)
-      e = errno;
-    else if (S_ISDIR(st.st_mode))
-      e = EISDIR;
-    else if (::access(path.c_str(), R_OK) != 0)
-      e = errno;
-    if (e != 0) error = std::strerror(e);
-    return e;
+    return schema::regular_file_readable(path, error);
   }
   std::string display(const std::string& path) const override { return path; }
   std::string stored(const std::string& path) const override { return path; }
@@ -700,14 +832,14 @@ class EmbeddedFiles final : public Files {
   std::string stored(const std::string&) const override { return {}; }
 };
 
-Check<double> positive() { return schema::greater_than(0.0); }
-Check<double> non_negative() { return schema::at_least(0.0); }
 
 Check<std::string> non_empty() {
   return [](const std::string& s) { return s.empty() ? std::string("must not be empty") : std::string(); };
 }
 
-std::string range_text(double lo, double hi) { return "[" + format_number(lo) + ", " + format_number(hi) + "]"; }
+std::string range_text(double lo, double hi) {
+  return "[" + schema::compact_number(lo) + ", " + schema::compact_number(hi) + "]";
+}
 
 // ---- motor file -------------------------------------------------------------
 
@@ -719,89 +851,119 @@ bool optional(Map& m, std::string_view key, T& out, const Check<T>& check = {}) 
   return !v.present() || v.as(out, check);
 }
 
+/// A closed physical range with its unit; every limit is listed, with its reason, in
+/// docs/configuration-limits.md.
+Check<double> range(double lo, double hi, const char* unit) { return schema::in_range(lo, hi, std::string(unit)); }
+
+/// Most magnet periods over the travel: the nominal table holds 256 points per period
+/// for each sensor, so this bounds it to 2.6 million points (20 MB per sensor).
+constexpr double kMaxMagnetPeriods = 10000.0;
+
+/// Largest |output.preset_counts|: 2^53 would still be exact in a double; 1e15 leaves
+/// room for the travel times counts_per_m (at most 1e14) without overflowing 64 bits.
+constexpr std::int64_t kMaxPresetCounts = 1000000000000000;
+
 void read_motor(Map m, core::MotorConfig& motor) {
   m.require("motor", motor.name, non_empty());
-  m.get("magnet_pitch_m", motor.magnet_pitch_m, [](const double& x) {
-    return (x > 0.0 && x <= 1.0) ? std::string() : "must be in (0, 1], got " + format_number(x);
-  });
-  m.get("travel_m", motor.travel_m, positive());
-  m.get("sample_rate_hz", motor.sample_rate_hz, schema::in_range(100.0, 100000.0));
+  const bool pitch_ok = optional<double>(m, "magnet_pitch_m", motor.magnet_pitch_m, range(1e-3, 1.0, "m"));
+  const bool travel_ok = optional<double>(m, "travel_m", motor.travel_m, range(1e-3, 100.0, "m"));
+  if (pitch_ok && travel_ok && motor.travel_m / motor.magnet_pitch_m > kMaxMagnetPeriods)
+    m.value(m.has("travel_m") ? "travel_m" : "magnet_pitch_m")
+        .error("travel_m / magnet_pitch_m = " + schema::compact_number(motor.travel_m / motor.magnet_pitch_m) +
+               " magnet periods out of range [0, " + schema::compact_number(kMaxMagnetPeriods) +
+               "] (the Hall table holds 256 points per period)");
+  m.get("sample_rate_hz", motor.sample_rate_hz, range(100.0, 100000.0, "Hz"));
 
   Map hall = m.map("hall");
   core::HallConfig& h = motor.hall;
-  const bool count_ok = optional(hall, "count", h.count, schema::in_range(1, core::kMaxHalls));
+  const bool count_ok = optional(hall, "count", h.count, schema::in_range(1, core::kMaxHalls, "sensors"));
   const Value offsets = hall.value("offsets_m");
   std::vector<double> off;
-  if (offsets.as(off)) {
+  if (offsets.as(off, range(-1.0, 1.0, "m"))) {
     if (count_ok && static_cast<int>(off.size()) != h.count)
       offsets.error("has " + std::to_string(off.size()) + " entries but count is " + std::to_string(h.count));
     else
       h.offsets_m = std::move(off);
   }
-  hall.get("spacing_m", h.spacing_m, positive());
-  const bool offset_ok = optional<double>(hall, "offset_v", h.offset_v);
-  hall.get("amplitude_v", h.amplitude_v, positive());
-  hall.get("noise_v", h.noise_v, non_negative());
-  hall.get("saturation_margin_v", h.saturation_margin_v, non_negative());
+  const bool spacing_ok = optional<double>(hall, "spacing_m", h.spacing_m, range(1e-5, 1.0, "m"));
+  if (spacing_ok && count_ok && hall.has("spacing_m") && h.spacing_m * (h.count - 1) > 1.0)
+    hall.value("spacing_m")
+        .error("the sensors span " + schema::compact_number(h.spacing_m * (h.count - 1)) +
+               " m: out of range [0, 1] m for sensors on one carriage");
+  const bool offset_ok = optional<double>(hall, "offset_v", h.offset_v, range(-50.0, 50.0, "V"));
+  hall.get("amplitude_v", h.amplitude_v, range(1e-3, 100.0, "V"));
+  hall.get("noise_v", h.noise_v, range(0.0, 1.0, "V"));
+  const bool margin_ok = optional<double>(hall, "saturation_margin_v", h.saturation_margin_v, range(0.0, 10.0, "V"));
 
   Map adc = m.map("adc");
-  adc.get("bits", motor.adc.bits, schema::in_range(8, 24));
-  const bool min_ok = optional<double>(adc, "min_v", motor.adc.min_v);
-  const bool max_ok = optional<double>(adc, "max_v", motor.adc.max_v);
+  adc.get("bits", motor.adc.bits, schema::in_range(8, 24, "bits"));
+  const bool min_ok = optional<double>(adc, "min_v", motor.adc.min_v, range(-50.0, 50.0, "V"));
+  const bool max_ok = optional<double>(adc, "max_v", motor.adc.max_v, range(-50.0, 50.0, "V"));
   if (min_ok && max_ok) {
-    if (!(motor.adc.max_v > motor.adc.min_v))
-      adc.value("max_v").error("max_v (" + format_number(motor.adc.max_v) + ") must be greater than min_v (" +
-                               format_number(motor.adc.min_v) + ")");
-    else if (offset_ok && (h.offset_v < motor.adc.min_v || h.offset_v > motor.adc.max_v))
-      hall.value("offset_v").error("offset_v (" + format_number(h.offset_v) + ") must lie inside the ADC range " +
-                                   range_text(motor.adc.min_v, motor.adc.max_v));
+    if (!(motor.adc.max_v > motor.adc.min_v)) {
+      adc.value(adc.has("max_v") ? "max_v" : "min_v")
+          .error("max_v (" + schema::compact_number(motor.adc.max_v) + ") must be greater than min_v (" +
+                 schema::compact_number(motor.adc.min_v) + ")");
+    } else {
+      if (offset_ok && (h.offset_v < motor.adc.min_v || h.offset_v > motor.adc.max_v))
+        hall.value("offset_v").error("offset_v (" + schema::compact_number(h.offset_v) +
+                                     ") must lie inside the ADC range " + range_text(motor.adc.min_v, motor.adc.max_v) +
+                                     " V");
+      // Every reading would be within the margin of a rail: nothing would carry a position.
+      if (margin_ok && !(2.0 * h.saturation_margin_v < motor.adc.max_v - motor.adc.min_v))
+        hall.value("saturation_margin_v")
+            .error(schema::out_of_range(h.saturation_margin_v, 0.0, 0.5 * (motor.adc.max_v - motor.adc.min_v), "V") +
+                   ": must be less than half the ADC range, else every reading counts as clipped");
+    }
   }
   {
     Map acc = m.map("accelerometer");
-    acc.get("noise_mps2", motor.accelerometer.noise_mps2, non_negative());
-    acc.get("range_mps2", motor.accelerometer.range_mps2, positive());
+    acc.get("noise_mps2", motor.accelerometer.noise_mps2, range(0.0, 100.0, "m/s^2"));
+    acc.get("range_mps2", motor.accelerometer.range_mps2, range(1.0, 10000.0, "m/s^2"));
   }
   {
     Map f = m.map("filter");
-    f.get("jerk_std_mps3", motor.filter.jerk_std_mps3, positive());
-    f.get("hall_position_floor_m", motor.filter.hall_position_floor_m, non_negative());
-    f.get("hall_systematic_std_m", motor.filter.hall_systematic_std_m, non_negative());
-    f.get("gate_sigma", motor.filter.gate_sigma, positive());
-    f.get("initial_position_std_m", motor.filter.initial_position_std_m, positive());
-    f.get("initial_velocity_std_mps", motor.filter.initial_velocity_std_mps, positive());
-    f.get("initial_acceleration_std_mps2", motor.filter.initial_acceleration_std_mps2, positive());
-    f.get("snap_std_mps4", motor.filter.snap_std_mps4, non_negative());
-    f.get("accel_bias_std_mps2", motor.filter.accel_bias_std_mps2, non_negative());
-    f.get("accel_bias_random_walk_mps2_per_sqrt_s", motor.filter.accel_bias_random_walk_mps2_per_sqrt_s,
-          non_negative());
-    f.get("accel_scale_std", motor.filter.accel_scale_std, schema::in_range(0.0, 0.5));
-    f.get("accel_scale_random_walk_per_sqrt_s", motor.filter.accel_scale_random_walk_per_sqrt_s, non_negative());
-    f.get("accel_spike_mps2", motor.filter.accel_spike_mps2, positive());
-    f.get("hall_rejections_before_reset", motor.filter.hall_rejections_before_reset, schema::in_range(1, 1000));
-    f.get("vibration_random_walk_mps2_per_sqrt_s", motor.filter.vibration_random_walk_mps2_per_sqrt_s,
-          non_negative());
-    f.get("use_frame_accelerometer", motor.filter.use_frame_accelerometer);
-    f.get("steady_jerk_std_mps3", motor.filter.steady_jerk_std_mps3, non_negative());
-    f.get("steady_position_walk_m_per_sqrt_s", motor.filter.steady_position_walk_m_per_sqrt_s, non_negative());
-    f.get("steady_hall_position_floor_m", motor.filter.steady_hall_position_floor_m, non_negative());
-    f.get("steady_jerk_limit_mps3", motor.filter.steady_jerk_limit_mps3, positive());
-    f.get("steady_hold_s", motor.filter.steady_hold_s, positive());
-    f.get("steady_exit_cusum", motor.filter.steady_exit_cusum, positive());
-    f.get("accel_bias_step_cusum", motor.filter.accel_bias_step_cusum, non_negative());
-    f.get("accel_bias_step_std_mps2", motor.filter.accel_bias_step_std_mps2, positive());
-    f.get("valid_position_accuracy_m", motor.filter.valid_position_accuracy_m, positive());
-    f.get("valid_velocity_accuracy_mps", motor.filter.valid_velocity_accuracy_mps, positive());
-    f.get("valid_confidence_sigma", motor.filter.valid_confidence_sigma, schema::in_range(0.5, 10.0));
-    f.get("sensor_readmit_s", motor.filter.sensor_readmit_s, schema::in_range(0.001, 60.0));
-    f.get("sensor_readmit_sigma", motor.filter.sensor_readmit_sigma, schema::in_range(1.0, 100.0));
-    f.get("hall_adaptation", motor.filter.hall_adaptation);
-    f.get("hall_gain_random_walk_per_sqrt_s", motor.filter.hall_gain_random_walk_per_sqrt_s, non_negative());
-    f.get("hall_offset_random_walk_v_per_sqrt_s", motor.filter.hall_offset_random_walk_v_per_sqrt_s, non_negative());
-    f.get("hall_gain_initial_std", motor.filter.hall_gain_initial_std, schema::in_range(0.0, 0.5));
-    f.get("hall_offset_initial_std_v", motor.filter.hall_offset_initial_std_v, schema::in_range(0.0, 1.0));
-    f.get("hall_drift_cusum", motor.filter.hall_drift_cusum, non_negative());
-    f.get("hall_gain_limit", motor.filter.hall_gain_limit, schema::in_range(0.001, 0.5));
-    f.get("hall_offset_limit_v", motor.filter.hall_offset_limit_v, schema::in_range(0.001, 1.0));
+    core::FilterConfig& c = motor.filter;
+    f.get("jerk_std_mps3", c.jerk_std_mps3, range(1e-6, 1e6, "m/s^3"));
+    f.get("hall_position_floor_m", c.hall_position_floor_m, range(0.0, 1e-3, "m"));
+    f.get("hall_systematic_std_m", c.hall_systematic_std_m, range(0.0, 1e-3, "m"));
+    f.get("gate_sigma", c.gate_sigma, range(1.0, 1000.0, "sigma"));
+    f.get("initial_position_std_m", c.initial_position_std_m, range(1e-9, 1.0, "m"));
+    f.get("initial_velocity_std_mps", c.initial_velocity_std_mps, range(1e-6, 100.0, "m/s"));
+    f.get("initial_acceleration_std_mps2", c.initial_acceleration_std_mps2, range(1e-6, 1e4, "m/s^2"));
+    f.get("snap_std_mps4", c.snap_std_mps4, range(0.0, 1e9, "m/s^4"));
+    f.get("accel_bias_std_mps2", c.accel_bias_std_mps2, range(0.0, 100.0, "m/s^2"));
+    f.get("accel_bias_random_walk_mps2_per_sqrt_s", c.accel_bias_random_walk_mps2_per_sqrt_s,
+          range(0.0, 100.0, "m/s^2/sqrt(s)"));
+    f.get("accel_scale_std", c.accel_scale_std, range(0.0, 0.5, ""));
+    f.get("accel_scale_random_walk_per_sqrt_s", c.accel_scale_random_walk_per_sqrt_s, range(0.0, 1.0, "1/sqrt(s)"));
+    f.get("accel_spike_mps2", c.accel_spike_mps2, range(1e-3, 1e5, "m/s^2"));
+    f.get("hall_rejections_before_reset", c.hall_rejections_before_reset, schema::in_range(1, 1000, "fixes"));
+    f.get("vibration_random_walk_mps2_per_sqrt_s", c.vibration_random_walk_mps2_per_sqrt_s,
+          range(0.0, 100.0, "m/s^2/sqrt(s)"));
+    f.get("use_frame_accelerometer", c.use_frame_accelerometer);
+    f.get("steady_jerk_std_mps3", c.steady_jerk_std_mps3, range(0.0, 1e6, "m/s^3"));
+    f.get("steady_position_walk_m_per_sqrt_s", c.steady_position_walk_m_per_sqrt_s, range(0.0, 1.0, "m/sqrt(s)"));
+    f.get("steady_hall_position_floor_m", c.steady_hall_position_floor_m, range(0.0, 1e-3, "m"));
+    f.get("steady_jerk_limit_mps3", c.steady_jerk_limit_mps3, range(1e-6, 1e6, "m/s^3"));
+    f.get("steady_hold_s", c.steady_hold_s, range(1e-4, 60.0, "s"));
+    f.get("steady_exit_cusum", c.steady_exit_cusum, range(1e-3, 1e6, ""));
+    f.get("accel_bias_step_cusum", c.accel_bias_step_cusum, range(0.0, 1e6, ""));
+    f.get("accel_bias_step_std_mps2", c.accel_bias_step_std_mps2, range(1e-6, 100.0, "m/s^2"));
+    f.get("valid_position_accuracy_m", c.valid_position_accuracy_m, range(1e-9, 1.0, "m"));
+    f.get("valid_velocity_accuracy_mps", c.valid_velocity_accuracy_mps, range(1e-6, 100.0, "m/s"));
+    f.get("valid_confidence_sigma", c.valid_confidence_sigma, range(0.5, 10.0, "sigma"));
+    f.get("sensor_readmit_s", c.sensor_readmit_s, range(0.001, 60.0, "s"));
+    f.get("sensor_readmit_sigma", c.sensor_readmit_sigma, range(1.0, 100.0, "sigma"));
+    f.get("hall_adaptation", c.hall_adaptation);
+    f.get("hall_gain_random_walk_per_sqrt_s", c.hall_gain_random_walk_per_sqrt_s, range(0.0, 1.0, "1/sqrt(s)"));
+    f.get("hall_offset_random_walk_v_per_sqrt_s", c.hall_offset_random_walk_v_per_sqrt_s,
+          range(0.0, 1.0, "V/sqrt(s)"));
+    f.get("hall_gain_initial_std", c.hall_gain_initial_std, range(0.0, 0.5, ""));
+    f.get("hall_offset_initial_std_v", c.hall_offset_initial_std_v, range(0.0, 1.0, "V"));
+    f.get("hall_drift_cusum", c.hall_drift_cusum, range(0.0, 1e6, ""));
+    f.get("hall_gain_limit", c.hall_gain_limit, range(0.001, 0.5, ""));
+    f.get("hall_offset_limit_v", c.hall_offset_limit_v, range(0.001, 1.0, "V"));
   }
 }
 
@@ -872,12 +1034,12 @@ class MachineLoader {
     root.get("machine", cfg.name, non_empty());
     {
       Map dds = root.map("dds");
-      dds.get("domain", cfg.dds.domain, schema::in_range(0, 232));
+      dds.get("domain", cfg.dds.domain, schema::in_range(0, 232, "(DDS domain id)"));
       dds.get("deadline_ms", cfg.dds.deadline_ms, [](const double& x) {
-        if (x < 1.0) return "must be >= 1, got " + format_number(x);
+        if (!(x >= 1.0 && x <= 60000.0)) return schema::out_of_range(x, 1.0, 60000.0, "ms");
         if (x != std::floor(x))
           return "must be a whole number of milliseconds (Fast DDS 2.9 rounds deadlines to ms), got " +
-                 format_number(x);
+                 schema::compact_number(x);
         return std::string();
       });
       deadline_ms_ = cfg.dds.deadline_ms;
@@ -985,7 +1147,11 @@ class MachineLoader {
     for (std::size_t i = 0; i < list.size(); ++i) {
       const Value item = list.at(i);
       int cpu = -1;
-      if (!item.as(cpu, schema::in_range(0, CPU_SETSIZE - 1))) {
+      if (!item.as(cpu, Check<int>([](const int& c) {
+            return c >= 0 && c < CPU_SETSIZE ? std::string()
+                                             : "must be in [0, " + std::to_string(CPU_SETSIZE - 1) + "], got " +
+                                                   std::to_string(c);
+          }))) {
         ok = false;
         continue;
       }
@@ -1052,21 +1218,22 @@ class MachineLoader {
     read_driver(a.map("driver"), axis.driver, travel);
     {
       Map out = a.map("output");
-      out.get("counts_per_m", axis.output.counts_per_m, positive());
+      out.get("counts_per_m", axis.output.counts_per_m, range(1.0, 1e12, "counts/m"));
       out.get("direction", axis.output.direction, [](const int& d) {
         return (d == 1 || d == -1) ? std::string() : "must be 1 or -1, got " + std::to_string(d);
       });
-      out.get("preset_counts", axis.output.preset_counts);
+      out.get("preset_counts", axis.output.preset_counts,
+              schema::in_range<std::int64_t>(-kMaxPresetCounts, kMaxPresetCounts, "counts"));
       // The offered deadline must cover at least two published periods, else it is
       // missed by design.
       const double rate_hz = current_motor_ && current_motor_->ok ? current_motor_->motor.sample_rate_hz : 0.0;
       const double deadline_ms = deadline_ms_;
       out.get("publish_divider", axis.output.publish_divider, Check<int>([rate_hz, deadline_ms](const int& n) {
-                if (n < 1 || n > 1000) return "must be in [1, 1000], got " + std::to_string(n);
+                if (n < 1 || n > 1000) return schema::out_of_range(n, 1, 1000, "samples");
                 if (rate_hz > 0.0 && 2.0 * 1000.0 * n / rate_hz > deadline_ms)
-                  return "publishes every " + format_number(1000.0 * n / rate_hz) + " ms at " +
-                         format_number(rate_hz) + " Hz: the offered deadline (dds.deadline_ms = " +
-                         format_number(deadline_ms) + ") must be at least two published periods";
+                  return "publishes every " + schema::compact_number(1000.0 * n / rate_hz) + " ms at " +
+                         schema::compact_number(rate_hz) + " Hz: the offered deadline (dds.deadline_ms = " +
+                         schema::compact_number(deadline_ms) + ") must be at least two published periods";
                 return std::string();
               }));
     }
@@ -1097,8 +1264,8 @@ class MachineLoader {
   static void within_travel(Map& m, std::string_view key, double x, double travel) {
     if (travel <= 0.0 || (x >= 0.0 && x <= travel)) return;
     const Value v = m.value(key);
-    v.error(std::string(key) + (v.present() ? " " : " (default) ") + format_number(x) +
-            " is outside the motor's travel " + range_text(0.0, travel) + " m");
+    v.error(std::string(v.present() ? "" : "(default) ") + schema::out_of_range(x, 0.0, travel, "m") +
+            ": outside the motor's travel");
   }
 
   void read_driver(Map d, DriverConfig& drv, double travel) {
@@ -1130,27 +1297,29 @@ class MachineLoader {
     d.get("realtime", s.realtime);
     d.get("noise_seed", s.noise_seed);
     read_profile(d.map("profile"), s.profile, travel);
-    read_faults(d.value("faults"), s);
+    read_faults(d.value("faults"), s, current_motor_ && current_motor_->ok ? current_motor_ : nullptr);
     {
       Map im = d.map("imperfections");
       sim::ImperfectionConfig& c = s.imperfections;
       im.get("track_seed", c.track_seed);
-      im.get("magnet_strength_std", c.magnet_strength_std, non_negative());
-      im.get("magnet_placement_std_m", c.magnet_placement_std_m, non_negative());
+      const double pitch = current_motor_ && current_motor_->ok ? current_motor_->motor.magnet_pitch_m : 1.0;
+      im.get("magnet_strength_std", c.magnet_strength_std, range(0.0, 0.5, ""));
+      im.get("magnet_placement_std_m", c.magnet_placement_std_m, range(0.0, 0.1 * pitch, "m (pitch / 10)"));
       im.get("field_third_harmonic", c.field_third_harmonic,
-             schema::in_range(-sim::kMaxThirdHarmonic, sim::kMaxThirdHarmonic));
-      im.get("sensor_placement_std_m", c.sensor_placement_std_m, non_negative());
-      im.get("sensor_gain_std", c.sensor_gain_std, non_negative());
-      im.get("sensor_offset_std_v", c.sensor_offset_std_v, non_negative());
-      im.get("hall_delay_s", c.hall_delay_s, non_negative());
-      im.get("coil_field_v_per_mps2", c.coil_field_v_per_mps2, schema::in_range(-0.1, 0.1));
-      im.get("accel_bias_mps2", c.accel_bias_mps2);
-      im.get("accel_scale_error", c.accel_scale_error, schema::greater_than(-1.0));
-      im.get("accel_bias_random_walk_mps2_per_sqrt_s", c.accel_bias_random_walk_mps2_per_sqrt_s, non_negative());
-      im.get("accel_delay_s", c.accel_delay_s, schema::in_range(0.0, 0.1));
-      im.get("frame_reaction_ratio", c.frame_reaction_ratio, schema::in_range(-1.0, 1.0));
-      im.get("frame_vibration_mps2", c.frame_vibration_mps2, non_negative());
-      im.get("frame_vibration_hz", c.frame_vibration_hz, positive());
+             range(-sim::kMaxThirdHarmonic, sim::kMaxThirdHarmonic, ""));
+      im.get("sensor_placement_std_m", c.sensor_placement_std_m, range(0.0, 0.25 * pitch, "m (pitch / 4)"));
+      im.get("sensor_gain_std", c.sensor_gain_std, range(0.0, 0.5, ""));
+      im.get("sensor_offset_std_v", c.sensor_offset_std_v, range(0.0, 1.0, "V"));
+      im.get("hall_delay_s", c.hall_delay_s, range(0.0, 0.01, "s"));
+      im.get("coil_field_v_per_mps2", c.coil_field_v_per_mps2, range(-0.1, 0.1, "V/(m/s^2)"));
+      im.get("accel_bias_mps2", c.accel_bias_mps2, range(-100.0, 100.0, "m/s^2"));
+      im.get("accel_scale_error", c.accel_scale_error, range(-0.5, 0.5, ""));
+      im.get("accel_bias_random_walk_mps2_per_sqrt_s", c.accel_bias_random_walk_mps2_per_sqrt_s,
+             range(0.0, 10.0, "m/s^2/sqrt(s)"));
+      im.get("accel_delay_s", c.accel_delay_s, range(0.0, 0.1, "s"));
+      im.get("frame_reaction_ratio", c.frame_reaction_ratio, range(-1.0, 1.0, ""));
+      im.get("frame_vibration_mps2", c.frame_vibration_mps2, range(0.0, 1000.0, "m/s^2"));
+      im.get("frame_vibration_hz", c.frame_vibration_hz, range(0.01, 10000.0, "Hz"));
       im.get("frame_accelerometer", c.frame_accelerometer);
     }
     read_temperature(d.map("temperature"), s.temperature);
@@ -1162,28 +1331,28 @@ class MachineLoader {
     t.get_enum("profile", c.profile,
                {{"constant", P::constant}, {"step", P::step}, {"ramp", P::ramp}, {"warmup", P::warmup}});
     const double max_rise = sim::kMaxTemperatureRiseK, max_tc = sim::kMaxTemperatureCoefficientPerK;
-    const bool delta_ok = t.get("delta_k", c.delta_k, schema::in_range(-max_rise, max_rise));
-    const bool offset_ok = t.get("offset_k", c.offset_k, schema::in_range(-max_rise, max_rise));
-    t.get("start_s", c.start_s, non_negative());
-    const bool duration_ok = t.get("duration_s", c.duration_s, non_negative());
-    t.get("magnet_remanence_per_k", c.magnet_remanence_per_k, schema::in_range(-max_tc, max_tc));
-    t.get("hall_gain_tc_per_k", c.hall_gain_tc_per_k, schema::in_range(-max_tc, max_tc));
+    const bool delta_ok = t.get("delta_k", c.delta_k, range(-max_rise, max_rise, "K"));
+    const bool offset_ok = t.get("offset_k", c.offset_k, range(-max_rise, max_rise, "K"));
+    t.get("start_s", c.start_s, range(0.0, 1e9, "s"));
+    const bool duration_ok = t.get("duration_s", c.duration_s, range(0.0, 1e9, "s"));
+    t.get("magnet_remanence_per_k", c.magnet_remanence_per_k, range(-max_tc, max_tc, "1/K"));
+    t.get("hall_gain_tc_per_k", c.hall_gain_tc_per_k, range(-max_tc, max_tc, "1/K"));
     t.get("hall_gain_tc_std_per_k", c.hall_gain_tc_std_per_k,
-          schema::in_range(0.0, sim::kMaxTemperatureCoefficientStdPerK));
+          range(0.0, sim::kMaxTemperatureCoefficientStdPerK, "1/K"));
     t.get("hall_offset_tc_std_v_per_k", c.hall_offset_tc_std_v_per_k,
-          schema::in_range(0.0, sim::kMaxHallOffsetDriftStdVPerK));
-    t.get("reference_c", c.reference_c, schema::in_range(-60.0, 200.0));
+          range(0.0, sim::kMaxHallOffsetDriftStdVPerK, "V/K"));
+    t.get("reference_c", c.reference_c, range(-60.0, 200.0, "deg C"));
     t.get("report", c.report);
-    t.get("report_noise_k", c.report_noise_k, non_negative());
-    t.get("report_resolution_k", c.report_resolution_k, non_negative());
+    t.get("report_noise_k", c.report_noise_k, range(0.0, 100.0, "K"));
+    t.get("report_resolution_k", c.report_resolution_k, range(0.0, 10.0, "K"));
     // Cross-checks, reported at the value (or at the block when it is a default).
     if ((delta_ok || offset_ok) && std::abs(c.delta_k) + std::abs(c.offset_k) > max_rise)
       t.value(delta_ok ? "delta_k" : "offset_k")
-          .error("the temperature rise reaches " + format_number(std::abs(c.delta_k) + std::abs(c.offset_k)) +
-                 " K: |offset_k| + |delta_k| must be <= " + format_number(max_rise));
+          .error("the temperature rise reaches " + schema::compact_number(std::abs(c.delta_k) + std::abs(c.offset_k)) +
+                 " K: |offset_k| + |delta_k| must be <= " + schema::compact_number(max_rise));
     if ((c.profile == P::ramp || c.profile == P::warmup) && !(c.duration_s > 0.0) && (duration_ok || !t.has("duration_s"))) {
       const Value v = t.value("duration_s");
-      v.error(std::string("duration_s") + (v.present() ? " " : " (default) ") + format_number(c.duration_s) +
+      v.error(std::string("duration_s") + (v.present() ? " " : " (default) ") + schema::compact_number(c.duration_s) +
               " must be > 0 for profile " + (c.profile == P::ramp ? "ramp (time to reach delta_k)" : "warmup (time constant)"));
     }
   }
@@ -1195,7 +1364,7 @@ class MachineLoader {
                            ? std::string()
                            : "must be a network interface name of 1 to 15 characters, got '" + s + "'";
               }));
-    d.get("timeout_ms", c.timeout_ms, schema::in_range(0.1, 60000.0));
+    d.get("timeout_ms", c.timeout_ms, range(0.1, 60000.0, "ms"));
     const Value layout = d.required("layout");
     std::string resolved;
     if (!layout.present() || !referenced_file(layout, resolved)) return;
@@ -1214,8 +1383,8 @@ class MachineLoader {
         layout.error("the layout carries " + std::to_string(c.layout.hall_count) + " Hall signals but motor '" + m.name +
                      "' has " + std::to_string(m.hall.count) + " sensors");
       if (std::abs(c.layout.sample_rate_hz - m.sample_rate_hz) > 1e-9 * m.sample_rate_hz)
-        layout.error("the layout's sample_rate_hz " + format_number(c.layout.sample_rate_hz) + " differs from motor '" +
-                     m.name + "' (" + format_number(m.sample_rate_hz) + ")");
+        layout.error("the layout's sample_rate_hz " + schema::compact_number(c.layout.sample_rate_hz) +
+                     " differs from motor '" + m.name + "' (" + schema::compact_number(m.sample_rate_hz) + ")");
     }
   }
   const MotorEntry* current_motor_ = nullptr;  // the axis being read, for cross-checks
@@ -1223,7 +1392,7 @@ class MachineLoader {
   // ---- end socketcan ----
 
   /// Injected sensor faults: a list of {kind, sensor, start_s, end_s, magnitude}.
-  static void read_faults(const Value& list, sim::SimConfig& s) {
+  static void read_faults(const Value& list, sim::SimConfig& s, const MotorEntry* motor) {
     if (!list.present() || list.is_null()) return;
     if (!list.is_sequence()) {
       list.error("expected a list of faults, e.g. [{kind: hall_stuck_high, sensor: 1, start_s: 2.0}]");
@@ -1244,11 +1413,33 @@ class MachineLoader {
                   {"accel_dead", K::accel_dead}, {"accel_saturated", K::accel_saturated},
                   {"accel_bias", K::accel_bias}, {"accel_missing", K::accel_missing}});
       if (!f.has("kind")) f.required("kind");
-      f.get("sensor", fc.sensor, schema::in_range(0, core::kMaxHalls - 1));
-      f.get("start_s", fc.start_s, schema::at_least(0.0));
-      f.get("end_s", fc.end_s, schema::greater_than(0.0));
-      f.get("magnitude", fc.magnitude);
-      if (fc.end_s <= fc.start_s) f.value("end_s").error("end_s must be after start_s");
+      const bool hall_kind = fc.kind == K::hall_stuck_high || fc.kind == K::hall_stuck_low ||
+                             fc.kind == K::hall_stuck_mid || fc.kind == K::hall_noisy ||
+                             fc.kind == K::hall_intermittent || fc.kind == K::hall_spikes;
+      // The sensor must exist on this axis' motor (a fault on sensor 7 of a 4-sensor
+      // motor would inject nothing and the test it is written for would pass vacuously).
+      const int sensors = motor ? motor->motor.hall.count : core::kMaxHalls;
+      const Value sensor = f.value("sensor");
+      if (sensor.present() && sensor.as(fc.sensor, schema::in_range(0, core::kMaxHalls - 1, "(Hall sensor index)")) &&
+          fc.sensor >= sensors)
+        sensor.error(schema::out_of_range(fc.sensor, 0, sensors - 1, "(Hall sensor index)") + ": motor '" +
+                     motor->motor.name + "' has " + std::to_string(sensors) + " Hall sensors, 0 .. " +
+                     std::to_string(sensors - 1));
+      if (sensor.present() && f.has("kind") && !hall_kind)
+        sensor.error("only used with the hall_* fault kinds (the accelerometer has no index)");
+      const bool start_ok = optional<double>(f, "start_s", fc.start_s, range(0.0, 1e9, "s"));
+      const bool end_ok = optional<double>(f, "end_s", fc.end_s, range(0.0, 1e300, "s"));
+      switch (fc.kind) {
+        case K::hall_noisy: f.get("magnitude", fc.magnitude, range(0.0, 100.0, "V (noise, one sigma)")); break;
+        case K::hall_intermittent: f.get("magnitude", fc.magnitude, range(0.0, 1.0, "(probability)")); break;
+        case K::hall_spikes: f.get("magnitude", fc.magnitude, range(-100.0, 100.0, "V")); break;
+        case K::accel_bias: f.get("magnitude", fc.magnitude, range(-1e4, 1e4, "m/s^2")); break;
+        default: f.get("magnitude", fc.magnitude, range(-1e4, 1e4, "")); break;
+      }
+      if (start_ok && end_ok && fc.end_s <= fc.start_s)
+        f.value(f.has("end_s") ? "end_s" : "start_s")
+            .error("end_s (" + schema::compact_number(fc.end_s) + ") must be after start_s (" +
+                   schema::compact_number(fc.start_s) + ")");
       s.faults[s.fault_count++] = fc;
     }
   }
@@ -1263,12 +1454,12 @@ class MachineLoader {
                 {"shuttle", K::shuttle},
                 {"point_to_point", K::point_to_point}});
     const bool start_ok = optional<double>(p, "start_m", c.start_m);
-    p.get("velocity_mps", c.velocity_mps);
-    p.get("acceleration_mps2", c.acceleration_mps2);
-    p.get("max_velocity_mps", c.max_velocity_mps, positive());
-    p.get("max_acceleration_mps2", c.max_acceleration_mps2, positive());
-    p.get("max_jerk_mps3", c.max_jerk_mps3, positive());
-    p.get("dwell_s", c.dwell_s, non_negative());
+    p.get("velocity_mps", c.velocity_mps, range(-100.0, 100.0, "m/s"));
+    p.get("acceleration_mps2", c.acceleration_mps2, range(-1e4, 1e4, "m/s^2"));
+    p.get("max_velocity_mps", c.max_velocity_mps, range(1e-6, 100.0, "m/s"));
+    p.get("max_acceleration_mps2", c.max_acceleration_mps2, range(1e-6, 1e4, "m/s^2"));
+    p.get("max_jerk_mps3", c.max_jerk_mps3, range(1e-3, 1e7, "m/s^3"));
+    p.get("dwell_s", c.dwell_s, range(0.0, 3600.0, "s"));
     const bool min_ok = optional<double>(p, "min_m", c.min_m);
     const bool max_ok = optional<double>(p, "max_m", c.max_m);
     if (start_ok) within_travel(p, "start_m", c.start_m, travel);
@@ -1277,10 +1468,11 @@ class MachineLoader {
     if (!(min_ok && max_ok && start_ok)) return;
     if (!(c.min_m < c.max_m)) {
       p.value(p.has("max_m") ? "max_m" : "min_m")
-          .error("min_m (" + format_number(c.min_m) + ") must be less than max_m (" + format_number(c.max_m) + ")");
+          .error("min_m (" + schema::compact_number(c.min_m) + ") must be less than max_m (" +
+                 schema::compact_number(c.max_m) + ")");
     } else if (c.start_m < c.min_m || c.start_m > c.max_m) {
       // The simulator keeps every profile inside [min_m, max_m]; a start outside it is a contradiction.
-      p.value("start_m").error("start_m " + format_number(c.start_m) + " is outside [min_m, max_m] = " +
+      p.value("start_m").error("start_m " + schema::compact_number(c.start_m) + " is outside [min_m, max_m] = " +
                                range_text(c.min_m, c.max_m));
     }
   }

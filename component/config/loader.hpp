@@ -7,6 +7,7 @@
 // against yaml-cpp headers.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <functional>
 #include <initializer_list>
@@ -70,15 +71,23 @@ struct Pos {
 template <class T>
 using Check = std::function<std::string(const T&)>;
 
+/// Shortest text that reads back as the same double (for files the program writes).
 std::string format_number(double x);
+/// Compact text for messages, like %.6g ("1e+12", "0.0015", "-3"); never hundreds of digits.
+std::string compact_number(double x);
+/// Text of a value being compared with limits: compact, but with enough digits that it
+/// does not print equal to a limit it differs from (1.0000001 against a limit of 1).
+std::string compact_against(double x, double lo, double hi);
+/// "X out of range [LO, HI] UNIT" (UNIT may be empty): the message of every range check.
+std::string out_of_range(double x, double lo, double hi, std::string_view unit = {});
 
+/// A closed range with its unit ("m", "V", "Hz", "" for a plain number).
 template <class T>
-Check<T> in_range(T lo, T hi) {
-  return [lo, hi](const T& x) {
+Check<T> in_range(T lo, T hi, std::string unit = {}) {
+  return [lo, hi, unit](const T& x) {
     return (x >= lo && x <= hi) ? std::string()
-                                : "must be in [" + format_number(static_cast<double>(lo)) + ", " +
-                                      format_number(static_cast<double>(hi)) + "], got " +
-                                      format_number(static_cast<double>(x));
+                                : out_of_range(static_cast<double>(x), static_cast<double>(lo),
+                                               static_cast<double>(hi), unit);
   };
 }
 Check<double> greater_than(double lo);
@@ -242,8 +251,21 @@ class Document {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Reads a whole file; on failure returns false and sets `error` to strerror.
-bool read_text_file(const std::string& path, std::string& text, std::string& error);
+/// Largest machine, motor, CAN layout or kept-position file read [bytes]: far above any
+/// real one (a few kB), small enough that a wrong path cannot exhaust the memory.
+inline constexpr std::size_t kMaxConfigFileBytes = 4u << 20;
+/// Largest calibration file read [bytes]: about 6 million table values (32 sensors x
+/// 200000 points), a 9 m travel at a 12 mm pitch with every sensor of a big node.
+inline constexpr std::size_t kMaxCalibrationFileBytes = 64u << 20;
+
+/// Reads a whole regular file of at most `max_bytes`; on failure returns false and
+/// sets `error` to why (strerror, "not a regular file (a FIFO)", "larger than ...").
+/// Never blocks on a FIFO and never reads an endless device such as /dev/zero.
+bool read_text_file(const std::string& path, std::string& text, std::string& error,
+                    std::size_t max_bytes = kMaxConfigFileBytes);
+/// 0 when `path` is a readable regular file, else an errno value (EISDIR, EINVAL for
+/// another kind of file, ...); `error` says why.
+int regular_file_readable(const std::string& path, std::string& error);
 
 /// Orders errors by file (in order of first appearance) and then position.
 void sort_errors(std::vector<ConfigError>& errors);

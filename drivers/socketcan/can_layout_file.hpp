@@ -57,16 +57,24 @@ struct Reader {
 
   void signal(Map s, SignalSpec& out, const std::string& where, bool is_sequence) {
     out.present = true;
-    s.require("start_bit", out.start_bit, config::schema::in_range(0, 511));
-    s.require("length", out.length, config::schema::in_range(1, kMaxSignalBits));
+    s.require("start_bit", out.start_bit, config::schema::in_range(0, 511, "(bit number)"));
+    s.require("length", out.length, config::schema::in_range(1, kMaxSignalBits, "bits"));
     s.get_enum("byte_order", out.order,
                {{"little_endian", ByteOrder::little_endian},
                 {"big_endian", ByteOrder::big_endian},
                 {"intel", ByteOrder::little_endian},
                 {"motorola", ByteOrder::big_endian}});
     s.get("signed", out.is_signed);
-    s.get("scale", out.scale, [](const double& x) { return x != 0.0 ? std::string() : std::string("must be non-zero"); });
-    s.get("offset", out.offset);
+    // Physical units per raw count (V, m/s^2, us, deg C): no sensor needs more than 1e6
+    // per count, nor a resolution finer than 1e-12; a scale of 0 would lose the signal.
+    s.get("scale", out.scale, [](const double& x) {
+      if (x == 0.0) return std::string("must be non-zero: a scale of 0 maps every raw value to the offset");
+      const double a = x < 0.0 ? -x : x;
+      return a >= 1e-12 && a <= 1e6 ? std::string()
+                                    : config::schema::compact_number(x) + " out of range [1e-12, 1e+06] in magnitude "
+                                                                          "(physical units per count)";
+    });
+    s.get("offset", out.offset, config::schema::in_range(-1e9, 1e9, "(physical units)"));
     if (is_sequence)
       s.get("in_can_id", out.in_can_id);
     else
@@ -84,11 +92,12 @@ struct Reader {
     }
     root.get("extended_id", l.extended_id);
     root.get("fd", l.fd);
-    root.require("frame_length", l.frame_length, config::schema::in_range(0, kMaxFrameBytes));
-    root.get("samples_per_frame", l.samples_per_frame, config::schema::in_range(1, kMaxSamplesPerFrame));
-    root.get("sample_stride_bits", l.sample_stride_bits, config::schema::in_range(0, 512));
-    root.require("sample_rate_hz", l.sample_rate_hz, config::schema::greater_than(0.0));
-    root.require("hall_count", l.hall_count, config::schema::in_range(1, core::kMaxHalls));
+    root.require("frame_length", l.frame_length, config::schema::in_range(0, kMaxFrameBytes, "bytes"));
+    root.get("samples_per_frame", l.samples_per_frame, config::schema::in_range(1, kMaxSamplesPerFrame, "samples"));
+    root.get("sample_stride_bits", l.sample_stride_bits, config::schema::in_range(0, 512, "bits"));
+    // The motor file's range: the layout's rate must equal the motor's.
+    root.require("sample_rate_hz", l.sample_rate_hz, config::schema::in_range(100.0, 100000.0, "Hz"));
+    root.require("hall_count", l.hall_count, config::schema::in_range(1, core::kMaxHalls, "sensors"));
     for (const char* k : {"can_id", "extended_id", "fd", "frame_length", "samples_per_frame", "sample_stride_bits",
                           "sample_rate_hz", "hall_count"})
       remember(k, root, k);

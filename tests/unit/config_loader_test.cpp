@@ -170,11 +170,11 @@ TEST(ConfigLoader, OutOfRangePointsAtValueAndNamesRange) {
                               "    homing: {position_m: 1.5}\n");// 8
   const LoadResult r = load_machine_file(path);
   EXPECT_EQ(r.errors.size(), 5u) << to_string(r.errors);
-  expect_error(r, path, 2, 11, "dds.domain", "must be in [0, 232], got 300");
+  expect_error(r, path, 2, 11, "dds.domain", "300 out of range [0, 232]");
   expect_error(r, path, 3, 16, "dds.deadline_ms", "whole number of milliseconds");
   expect_error(r, path, 5, 11, "axes[0].name", "1 to 15 characters");
   expect_error(r, path, 7, 25, "axes[0].output.direction", "must be 1 or -1, got 2");
-  expect_error(r, path, 8, 26, "axes[0].homing.position_m", "outside the motor's travel [0, 1] m");
+  expect_error(r, path, 8, 26, "axes[0].homing.position_m", "1.5 out of range [0, 1] m: outside the motor's travel");
 }
 
 TEST(ConfigLoader, MalformedYamlReportsParserPosition) {
@@ -215,9 +215,9 @@ TEST(ConfigLoader, ErrorInMotorFileNamesTheMotorFile) {
                               "    motor: ../motors/m.yaml\n");
   const LoadResult r = load_machine_file(path);
   EXPECT_EQ(r.errors.size(), 3u) << to_string(r.errors);
-  expect_error(r, motor, 3, 10, "hall.count", "must be in [1, 8], got 9");
+  expect_error(r, motor, 3, 10, "hall.count", "9 out of range [1, 8] sensors");
   expect_error(r, motor, 4, 24, "adc.max_v", "must be greater than min_v");
-  expect_error(r, motor, 5, 17, "sample_rate_hz", "must be in [100, 100000]");
+  expect_error(r, motor, 5, 17, "sample_rate_hz", "10 out of range [100, 100000] Hz");
 }
 
 TEST(ConfigLoader, AllErrorsAreReportedInPositionOrder) {
@@ -237,7 +237,7 @@ TEST(ConfigLoader, AllErrorsAreReportedInPositionOrder) {
                               "    motor: m.yaml\n");             // 11
   const LoadResult r = load_machine_file(path);
   ASSERT_EQ(r.errors.size(), 7u) << to_string(r.errors);
-  expect_error(r, path, 2, 15, "dds.domain", "must be in [0, 232]");
+  expect_error(r, path, 2, 15, "dds.domain", "-1 out of range [0, 232]");
   expect_error(r, path, 2, 19, "dds.colour", "unknown key 'colour'");
   expect_error(r, path, 7, 13, "axes[0].driver.type", "'simulated' is not one of sim | replay");
   expect_error(r, path, 8, 36, "axes[0].driver.profile.max_m", "min_m (0.9) must be less than max_m (0.1)");
@@ -262,7 +262,7 @@ TEST(ConfigLoader, SharedBrokenMotorIsReportedOnce) {
   const auto path = dir.write("machine.yaml", "axes:\n  - {name: x, motor: m.yaml}\n  - {name: y, motor: m.yaml}\n");
   const LoadResult r = load_machine_file(path);
   ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
-  expect_error(r, motor, 2, 11, "travel_m", "must be > 0, got 0");
+  expect_error(r, motor, 2, 11, "travel_m", "0 out of range [0.001, 100] m");
 }
 
 TEST(ConfigLoader, UnreadableFiles) {
@@ -381,7 +381,7 @@ TEST(ConfigLoader, SimulatorFaultsAreLoadedAndChecked) {
   EXPECT_EQ(r.errors[0].line, 8);
   EXPECT_NE(r.errors[0].message.find("'accel_noisy' is not one of"), std::string::npos) << r.errors[0].message;
   EXPECT_EQ(r.errors[1].line, 9);
-  EXPECT_NE(r.errors[1].message.find("end_s must be after start_s"), std::string::npos) << r.errors[1].message;
+  EXPECT_NE(r.errors[1].message.find("end_s (1) must be after start_s (3)"), std::string::npos) << r.errors[1].message;
   const auto& sim = r.config.axes.at(0).driver.sim;
   ASSERT_GE(sim.fault_count, 1);
   EXPECT_EQ(sim.faults[0].kind, sim::FaultConfig::Kind::hall_stuck_high);
@@ -413,7 +413,7 @@ TEST(ConfigLoader, ProfileMustStayInsideTravel) {
                               "    homing: {position_m: 0.2}\n");                // 6
   const LoadResult r = load_machine_file(path);
   EXPECT_EQ(r.errors.size(), 1u) << to_string(r.errors);
-  expect_error(r, path, 5, 51, "axes[0].driver.profile.max_m", "outside the motor's travel [0, 0.3] m");
+  expect_error(r, path, 5, 51, "axes[0].driver.profile.max_m", "out of range [0, 0.3] m: outside the motor's travel");
 }
 
 TEST(ConfigLoader, SimImperfectionsAndPointToPointLoad) {
@@ -497,15 +497,15 @@ TEST(ConfigLoader, BadSimImperfectionsPointAtTheValue) {
   const LoadResult r = load_machine_file(path);
   EXPECT_EQ(r.errors.size(), 11u) << to_string(r.errors);
   const std::string p = "axes[0].driver.profile.", i = "axes[0].driver.imperfections.";
-  expect_error(r, path, 7, 24, p + "max_jerk_mps3", "must be > 0, got 0");
-  expect_error(r, path, 8, 18, p + "dwell_s", "must be >= 0, got -0.1");
-  expect_error(r, path, 10, 31, i + "field_third_harmonic", "must be in [-0.3, 0.3], got 0.5");
-  expect_error(r, path, 11, 32, i + "coil_field_v_per_mps2", "must be in [-0.1, 0.1], got 0.2");
-  expect_error(r, path, 12, 49, i + "accel_bias_random_walk_mps2_per_sqrt_s", "must be >= 0");
-  expect_error(r, path, 13, 24, i + "accel_delay_s", "must be in [0, 0.1], got 0.25");
-  expect_error(r, path, 14, 31, i + "frame_reaction_ratio", "must be in [-1, 1], got -2");
-  expect_error(r, path, 15, 31, i + "frame_vibration_mps2", "must be >= 0, got -0.03");
-  expect_error(r, path, 16, 29, i + "frame_vibration_hz", "must be > 0, got 0");
+  expect_error(r, path, 7, 24, p + "max_jerk_mps3", "0 out of range [0.001, 1e+07] m/s^3");
+  expect_error(r, path, 8, 18, p + "dwell_s", "-0.1 out of range [0, 3600] s");
+  expect_error(r, path, 10, 31, i + "field_third_harmonic", "0.5 out of range [-0.3, 0.3]");
+  expect_error(r, path, 11, 32, i + "coil_field_v_per_mps2", "0.2 out of range [-0.1, 0.1] V/(m/s^2)");
+  expect_error(r, path, 12, 49, i + "accel_bias_random_walk_mps2_per_sqrt_s", "out of range [0, 10] m/s^2/sqrt(s)");
+  expect_error(r, path, 13, 24, i + "accel_delay_s", "0.25 out of range [0, 0.1] s");
+  expect_error(r, path, 14, 31, i + "frame_reaction_ratio", "-2 out of range [-1, 1]");
+  expect_error(r, path, 15, 31, i + "frame_vibration_mps2", "-0.03 out of range [0, 1000] m/s^2");
+  expect_error(r, path, 16, 29, i + "frame_vibration_hz", "0 out of range [0.01, 10000] Hz");
   expect_error(r, path, 17, 30, i + "frame_accelerometer", "expected true or false, got 'yes'");
   expect_error(r, path, 18, 9, i + "frame_vibration_freq_hz", "did you mean 'frame_vibration_hz'?");
 
@@ -611,11 +611,11 @@ TEST(ConfigLoader, BadSimTemperaturePointsAtTheValue) {
   EXPECT_EQ(r.errors.size(), 8u) << to_string(r.errors);
   const std::string t = "axes[0].driver.temperature.";
   expect_error(r, path, 6, 18, t + "profile", "'linear' is not one of constant | step | ramp | warmup");
-  expect_error(r, path, 7, 18, t + "delta_k", "must be in [-100, 100], got 150");
-  expect_error(r, path, 8, 18, t + "start_s", "must be >= 0, got -1");
-  expect_error(r, path, 9, 33, t + "hall_gain_tc_std_per_k", "must be in [0, 0.001], got 0.01");
-  expect_error(r, path, 10, 33, t + "magnet_remanence_per_k", "must be in [-0.003, 0.003], got -0.012");
-  expect_error(r, path, 11, 30, t + "report_resolution_k", "must be >= 0, got -0.0625");
+  expect_error(r, path, 7, 18, t + "delta_k", "150 out of range [-100, 100] K");
+  expect_error(r, path, 8, 18, t + "start_s", "-1 out of range [0, 1e+09] s");
+  expect_error(r, path, 9, 33, t + "hall_gain_tc_std_per_k", "0.01 out of range [0, 0.001] 1/K");
+  expect_error(r, path, 10, 33, t + "magnet_remanence_per_k", "-0.012 out of range [-0.003, 0.003] 1/K");
+  expect_error(r, path, 11, 30, t + "report_resolution_k", "-0.0625 out of range [0, 10] K");
   expect_error(r, path, 12, 17, t + "report", "expected true or false, got '1'");
   expect_error(r, path, 13, 9, t + "offset_c", "did you mean 'offset_k'?");
 
@@ -814,7 +814,7 @@ TEST(ConfigLoader, PublishDividerMustLeaveTheDeadlineTwoPublishedPeriods) {
   const LoadResult r = load_machine_file(bad);
   EXPECT_EQ(r.errors.size(), 2u) << to_string(r.errors);
   expect_error(r, bad, 5, 31, "axes[0].output.publish_divider", "at least two published periods");
-  expect_error(r, bad, 9, 31, "axes[1].output.publish_divider", "must be in [1, 1000], got 0");
+  expect_error(r, bad, 9, 31, "axes[1].output.publish_divider", "0 out of range [1, 1000] samples");
 }
 
 TEST(ConfigLoader, SignatureHomingNeedsACalibrationAndOnlyItTakesAStateFile) {
@@ -878,8 +878,8 @@ TEST(ConfigLoader, ValidAccuracyAndHallAdaptationKeysLoadAndAreChecked) {
   const auto bad_machine = dir.write("bad-machine.yaml", "axes:\n  - {name: x, motor: bad.yaml}\n");
   const LoadResult b = load_machine_file(bad_machine);
   ASSERT_EQ(b.errors.size(), 2u) << to_string(b.errors);
-  expect_error(b, bad, 3, 30, "filter.valid_position_accuracy_m", "must be > 0");
-  expect_error(b, bad, 4, 27, "filter.valid_confidence_sigma", "must be in [0.5, 10]");
+  expect_error(b, bad, 3, 30, "filter.valid_position_accuracy_m", "out of range [1e-09, 1] m");
+  expect_error(b, bad, 4, 27, "filter.valid_confidence_sigma", "out of range [0.5, 10] sigma");
 }
 
 }  // namespace ve::config
