@@ -22,8 +22,7 @@
 #include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
 #include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
-#include <fastdds/rtps/transport/shared_mem/SharedMemTransportDescriptor.h>
-#include <fastrtps/utils/IPLocator.h>
+#include <fastdds/dds/log/Log.hpp>
 #include <spdlog/spdlog.h>
 
 #include "VirtualEncoderPubSubTypes.h"
@@ -91,6 +90,13 @@ double to_ms(const eprosima::fastrtps::Duration_t& d) {
 // Liveliness AUTOMATIC: the participant asserts it; a lease of 1 s offered, 2 s
 // requested (offered <= requested), announcements every 0.5 s (< lease, or Fast
 // DDS refuses the writer).
+// No endpoint of the product uses data sharing (a shared-memory delivery path
+// beside the transports, with the same dead-owner hazard: see udp_only()).
+template <class Q>
+void no_data_sharing(Q& q) {
+  q.data_sharing().off();
+}
+
 void automatic_liveliness(fdds::LivelinessQosPolicy& l, double lease_s, double announce_s) {
   l.kind = fdds::AUTOMATIC_LIVELINESS_QOS;
   l.lease_duration = duration_ms(lease_s * 1e3);
@@ -174,57 +180,63 @@ void calibration_status_defaults(Q& q) {
   q.history().depth = 1;
 }
 
-// The participant's transports and locators when no profile is loaded (the
-// same as "ve_participant" in deploy/dds-profiles.xml).
+// The participant's transports when no profile is loaded (the same as
+// "ve_participant" in deploy/dds-profiles.xml): UDPv4 only, no shared memory.
 //
-// Why the process receives over UDPv4 only, though it has shared memory too:
-// a restart after a crash (SIGKILL, then systemd's Restart=on-failure) gets the
-// same participant id and so the same shared-memory port numbers as the dead
-// process. Fast DDS 2.9 finds the dead ports, removes them and creates new ones
-// under the same names, but every peer that stayed up keeps the dead port
-// mapped (its port cache is keyed by port number) and goes on pushing
-// discovery and data into it, where nothing reads (a peer on the same host
-// keeps only the shared-memory locators of a participant that announces both,
-// so UDPv4 does not carry it meanwhile), until its own health check
-// gives the port up and it opens the new one: 1 to 4 s before the first
-// sample reached a subscriber, against 40 to 160 ms with UDPv4 only (restart
-// test, tests/bench/bench_soak --restarts). Neither healthy_check_timeout_ms
-// (it is the peer's port, with the timeout of the process that made it) nor
-// `fastdds shm clean` before the start (the peer's mapping survives the unlink)
-// changed it; discovery over UDPv4 with user data still received over shared
-// memory helped only in part (up to 2.7 s). A process that announces no shared-memory locator leaves no port for
-// a peer to hold on to, and it still writes over shared memory to every local
-// reader that announces one: the state stream to local consumers stays on
-// shared memory; what reaches this process (discovery, acknowledgements,
-// calibration commands) comes over UDPv4 (loopback on the host).
-void receive_over_udp_only(fdds::DomainParticipantQos& pq) {
+// Why no shared memory (docs/dds-integration.md has the whole story): Fast DDS
+// 2.9's shared-memory transport lets a sender lock a mutex that lives in the
+// RECEIVER's port segment (/dev/shm/fastrtps_port*: the port's empty_cv_mutex
+// and its condition's list mutex) for every message it pushes. Those are
+// process-shared pthread mutexes without the robust attribute (Boost.Interprocess
+// 1.74, as Debian builds Fast DDS), locked with a 1 s timeout that throws. A
+// sender SIGKILLed while it holds one leaves it locked for good; the receiver's
+// listening thread then throws "Interprocess mutex timeout when locking. Possible
+// deadlock: owner died without unlocking?" from listener_processing_stop(), which
+// nothing catches on that thread: std::terminate, the receiver aborts (fixed
+// upstream in Fast DDS 2.6.6, 2.10.2, 2.11.2 and 2.12, not in Debian's 2.9.1). A process that
+// has no shared-memory transport never touches another process' segments: a
+// killed encoder cannot take a consumer with it, whatever the consumer's own
+// transports, and a killed consumer cannot take the encoder with it. It also
+// announces no shared-memory port, so a restart is not held up by peers writing
+// into the dead process' ports. Data sharing (another shared-memory path) is off
+// on every endpoint as well (keyed types cannot use it in 2.9; stated anyway).
+// Measured with tests/integration/publisher_kill_test.cpp (docs/dds-integration.md).
+void udp_only(fdds::DomainParticipantQos& pq) {
   namespace rtps = eprosima::fastdds::rtps;
-  using eprosima::fastrtps::rtps::IPLocator;
-  using eprosima::fastrtps::rtps::Locator_t;
   pq.transport().use_builtin_transports = false;
   pq.transport().user_transports.clear();
-  auto shm = std::make_shared<rtps::SharedMemTransportDescriptor>();
-  shm->segment_size(transport::kShmSegmentBytes);
-  shm->port_queue_capacity(transport::kShmPortQueueCapacity);
-  pq.transport().user_transports.push_back(shm);
   auto udp = std::make_shared<rtps::UDPv4TransportDescriptor>();
   udp->receiveBufferSize = transport::kUdpReceiveBufferBytes;
   pq.transport().user_transports.push_back(udp);
-  // Port 0 and no address: Fast DDS fills in the domain's ports and the host's
-  // interfaces, as for its default locators. The multicast discovery locator
-  // must be given too once a unicast one is (else none is used).
-  Locator_t unicast;
-  unicast.kind = LOCATOR_KIND_UDPv4;
-  Locator_t multicast;
-  multicast.kind = LOCATOR_KIND_UDPv4;
-  IPLocator::setIPv4(multicast, 239, 255, 0, 1);
-  auto& wire = pq.wire_protocol();
-  wire.builtin.metatrafficUnicastLocatorList.clear();
-  wire.builtin.metatrafficUnicastLocatorList.push_back(unicast);
-  wire.builtin.metatrafficMulticastLocatorList.clear();
-  wire.builtin.metatrafficMulticastLocatorList.push_back(multicast);
-  wire.default_unicast_locator_list.clear();
-  wire.default_unicast_locator_list.push_back(unicast);
+}
+
+/// Fast DDS's own log (its default consumer prints to stdout, where `monitor --csv`
+/// writes its rows) goes through the product's logger instead, to stderr like every
+/// other log line: errors as errors, warnings as warnings, named "Fast DDS" with
+/// Fast DDS's category. Installed once per process, before the first participant.
+class FastDdsLogToSpdlog : public fdds::LogConsumer {
+ public:
+  explicit FastDdsLogToSpdlog(std::shared_ptr<spdlog::logger> logger) : logger_(std::move(logger)) {}
+  void Consume(const fdds::Log::Entry& e) override {
+    const auto level = e.kind == fdds::Log::Kind::Error     ? spdlog::level::err
+                       : e.kind == fdds::Log::Kind::Warning ? spdlog::level::warn
+                                                            : spdlog::level::debug;
+    std::string message = e.message;
+    while (!message.empty() && (message.back() == '\n' || message.back() == ' ')) message.pop_back();
+    logger_->log(level, "Fast DDS [{}]: {}", e.context.category != nullptr ? e.context.category : "", message);
+  }
+
+ private:
+  std::shared_ptr<spdlog::logger> logger_;  // kept alive for Fast DDS's log thread
+};
+
+void route_fastdds_log() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    fdds::Log::ClearConsumers();
+    fdds::Log::RegisterConsumer(std::make_unique<FastDdsLogToSpdlog>(spdlog::default_logger()));
+    fdds::Log::SetVerbosity(fdds::Log::Kind::Warning);
+  });
 }
 
 /// The kernel caps SO_RCVBUF at net.core.rmem_max without an error (Debian's
@@ -257,6 +269,7 @@ bool DdsOptions::type_information_from_env() {
 }
 
 std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::string& error) {
+  route_fastdds_log();  // before the factory, which may already parse a profiles file
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   // FASTRTPS_DEFAULT_PROFILES_FILE / DEFAULT_FASTRTPS_PROFILES.xml, then the machine's file.
   factory->load_profiles();
@@ -281,7 +294,7 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
     return nullptr;
   } else {
     factory->get_default_participant_qos(pq);
-    if (!options.receive_over_shm) receive_over_udp_only(pq);
+    if (!options.receive_over_shm) udp_only(pq);
   }
   pq.name(options.participant_name);
   if (!options.statistics.empty()) {
@@ -361,6 +374,7 @@ DdsContext::~DdsContext() {
   // Writers and readers are deleted by their owners first; this removes the rest.
   participant_->delete_contained_entities();
   fdds::DomainParticipantFactory::get_instance()->delete_participant(participant_);
+  fdds::Log::Flush();  // Fast DDS logs from its own thread: out before the process goes on
 }
 
 // ---------------------------------------------------------------- StateWriter
@@ -400,11 +414,20 @@ class StateWriter::Listener : public fdds::DataWriterListener {
       return;
     }
   }
-  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
-    matched.store(s.current_count);
+  void on_publication_matched(fdds::DataWriter* w, const fdds::PublicationMatchedStatus& s) override {
+    // Per axis writer (a callback may come while a later axis is being added).
+    std::lock_guard<std::mutex> lock(matched_mutex);
+    matched[w] = s.current_count;
+  }
+  int matched_max() {
+    std::lock_guard<std::mutex> lock(matched_mutex);
+    int n = 0;
+    for (const auto& [w, count] : matched) n = std::max(n, count);
+    return n;
   }
   StateWriter& writer;
-  std::atomic<int> matched{0};
+  std::mutex matched_mutex;
+  std::map<const fdds::DataWriter*, int> matched;
 };
 
 StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), listener_(std::make_unique<Listener>(*this)) {
@@ -418,11 +441,25 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
     if (deadline_ms <= 0) q.deadline().period = eprosima::fastrtps::c_TimeInfinite;
   }
   if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
+  no_data_sharing(q);
   deadline_ms_ = to_ms(q.deadline().period);
   deadline_ns_ = static_cast<std::int64_t>(std::llround(deadline_ms_ * 1e6));
   qos_ = std::make_unique<fdds::DataWriterQos>(q);
-  // The shared writer: matching status, and samples of axes without their own writer.
-  writer_ = pub->create_datawriter(ctx_.state_topic(), q, listener_.get(), fdds::StatusMask::publication_matched());
+  // No writer yet: each axis gets its own in add_axis(), and that is the only state
+  // writer there is (one per axis; an earlier shared writer that only ever matched
+  // readers showed up in discovery as a second state writer per axis that never
+  // wrote). ok() still says whether a writer can be made from these QoS: Fast DDS
+  // checks them on a writer created disabled, in a publisher of its own that does not
+  // enable what it creates, so the probe never reaches discovery.
+  fdds::PublisherQos probe_qos = fdds::PUBLISHER_QOS_DEFAULT;
+  probe_qos.entity_factory().autoenable_created_entities = false;
+  if (auto* probe_pub = ctx_.participant()->create_publisher(probe_qos)) {
+    if (auto* probe = probe_pub->create_datawriter(ctx_.state_topic(), q, nullptr, fdds::StatusMask::none())) {
+      ok_ = true;
+      probe_pub->delete_datawriter(probe);
+    }
+    ctx_.participant()->delete_publisher(probe_pub);
+  }
 }
 
 StateWriter::~StateWriter() {
@@ -431,13 +468,10 @@ StateWriter::~StateWriter() {
     slot->writer->set_listener(nullptr);
     ctx_.publisher()->delete_datawriter(slot->writer);
   }
-  if (writer_ != nullptr) {
-    writer_->set_listener(nullptr);
-    ctx_.publisher()->delete_datawriter(writer_);
-  }
 }
 
 int StateWriter::add_axis(std::uint32_t axis_id, const std::string& name) {
+  if (!ok_) return -1;
   auto slot = std::make_unique<Slot>();
   slot->axis_id = axis_id;
   slot->name = name;
@@ -449,8 +483,9 @@ int StateWriter::add_axis(std::uint32_t axis_id, const std::string& name) {
   type.getKey(&key, &slot->handle, false);
   // One writer per axis: a stalled or bursting axis never holds the lock another
   // axis writes through, so their deadlines are independent inside the process too.
-  slot->writer = ctx_.publisher()->create_datawriter(ctx_.state_topic(), *qos_, listener_.get(),
-                                                     fdds::StatusMask::offered_deadline_missed());
+  slot->writer = ctx_.publisher()->create_datawriter(
+      ctx_.state_topic(), *qos_, listener_.get(),
+      fdds::StatusMask::offered_deadline_missed() << fdds::StatusMask::publication_matched());
   if (slot->writer == nullptr) return -1;
   slots_.push_back(std::move(slot));
   return static_cast<int>(slots_.size() - 1);
@@ -473,7 +508,7 @@ void StateWriter::poll_deadline_episode(int index, std::int64_t now_ns) {
 
 void StateWriter::retire_axis(int index) {
   Slot& slot = *slots_[static_cast<std::size_t>(index)];
-  if (slot.retired || writer_ == nullptr) return;
+  if (slot.retired || slot.writer == nullptr) return;
   slot.retired = true;
   ve::dds::EncoderState key{};
   key.axis_id(slot.axis_id);
@@ -523,7 +558,7 @@ bool StateWriter::write(int slot, const ve::dds::EncoderState& sample) {
 bool StateWriter::write(const ve::dds::EncoderState& sample) {
   for (std::size_t i = 0; i < slots_.size(); ++i)
     if (slots_[i]->axis_id == sample.axis_id()) return write(static_cast<int>(i), sample);
-  return writer_->write(const_cast<ve::dds::EncoderState*>(&sample));
+  return false;  // not an axis of this writer (add_axis)
 }
 
 std::uint64_t StateWriter::deadline_missed_total() const {
@@ -544,7 +579,7 @@ std::uint64_t StateWriter::deadline_missed(std::uint32_t axis_id) const {
   return 0;
 }
 
-int StateWriter::matched_readers() const { return listener_->matched.load(); }
+int StateWriter::matched_readers() const { return listener_->matched_max(); }
 
 // ---------------------------------------------------------------- DiagnosticsWriter
 
@@ -563,6 +598,7 @@ DiagnosticsWriter::DiagnosticsWriter(DdsContext& ctx) : ctx_(ctx), listener_(std
   pub->get_default_datawriter_qos(q);
   from_profile_ = ctx_.writer_qos_from_profile(profile::kDiagnosticsWriter, q);
   if (!from_profile_) diagnostics_writer_defaults(q);
+  no_data_sharing(q);
   writer_ = pub->create_datawriter(ctx_.diagnostics_topic(), q, listener_.get(), fdds::StatusMask::publication_matched());
 }
 
@@ -587,6 +623,7 @@ DescriptionWriter::DescriptionWriter(DdsContext& ctx) : ctx_(ctx) {
   fdds::DataWriterQos q;
   pub->get_default_datawriter_qos(q);
   if (!ctx_.writer_qos_from_profile(profile::kDescriptionWriter, q)) description_defaults(q);
+  no_data_sharing(q);
   writer_ = pub->create_datawriter(ctx_.description_topic(), q);
 }
 
@@ -730,8 +767,11 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
   sub->get_default_datareader_qos(gq);
   if (!ctx_.reader_qos_from_profile(profile::kDiagnosticsReader, gq)) diagnostics_reader_defaults(gq);
 
+  no_data_sharing(sq);
   state_reader_ = sub->create_datareader(ctx_.state_topic(), sq, nullptr, fdds::StatusMask::none());
+  no_data_sharing(dq);
   description_reader_ = sub->create_datareader(ctx_.description_topic(), dq, nullptr, fdds::StatusMask::none());
+  no_data_sharing(gq);
   diagnostics_reader_ = sub->create_datareader(ctx_.diagnostics_topic(), gq, nullptr, fdds::StatusMask::none());
   listener_->state_reader = state_reader_;
   listener_->description_reader = description_reader_;
@@ -805,6 +845,7 @@ CalibrationCommandReader::CalibrationCommandReader(DdsContext& ctx, Callback on_
   sub->get_default_datareader_qos(q);
   from_profile_ = ctx_.reader_qos_from_profile(profile::kCalibrationCommandReader, q);
   if (!from_profile_) calibration_command_defaults(q);
+  no_data_sharing(q);
   reader_ = sub->create_datareader(ctx_.calibration_command_topic(), q, listener_.get(),
                                    fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
 }
@@ -832,6 +873,7 @@ CalibrationStatusWriter::CalibrationStatusWriter(DdsContext& ctx) : ctx_(ctx), l
   pub->get_default_datawriter_qos(q);
   from_profile_ = ctx_.writer_qos_from_profile(profile::kCalibrationStatusWriter, q);
   if (!from_profile_) calibration_status_defaults(q);
+  no_data_sharing(q);
   writer_ = pub->create_datawriter(ctx_.calibration_status_topic(), q, listener_.get(),
                                    fdds::StatusMask::publication_matched());
 }
@@ -863,6 +905,7 @@ CalibrationCommandWriter::CalibrationCommandWriter(DdsContext& ctx)
   fdds::DataWriterQos q;
   pub->get_default_datawriter_qos(q);
   if (!ctx_.writer_qos_from_profile(profile::kCalibrationCommandWriter, q)) calibration_command_defaults(q);
+  no_data_sharing(q);
   writer_ = pub->create_datawriter(ctx_.calibration_command_topic(), q, listener_.get(),
                                    fdds::StatusMask::publication_matched());
 }
@@ -914,6 +957,7 @@ CalibrationStatusReader::CalibrationStatusReader(DdsContext& ctx, Callback on_st
   if (!ctx_.reader_qos_from_profile(profile::kCalibrationStatusReader, q)) calibration_status_defaults(q);
   // Created without a listener, then given one and drained: transient-local
   // samples that arrive in between are not lost.
+  no_data_sharing(q);
   reader_ = sub->create_datareader(ctx_.calibration_status_topic(), q, nullptr, fdds::StatusMask::none());
   if (reader_ == nullptr) return;
   reader_->set_listener(listener_.get(), fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());

@@ -38,9 +38,10 @@ inline constexpr const char* kCalibrationStatusTopic = "ve/calibration_status";
 /// Profile names in deploy/dds-profiles.xml.
 namespace profile {
 inline constexpr const char* kParticipant = "ve_participant";
-/// Shared memory only (both sides must use it; see deploy/dds-profiles.xml).
+/// Shared memory only: not in the shipped profiles (a killed shared-memory peer can
+/// abort a Fast DDS 2.9 process: docs/dds-integration.md); measurements define it.
 inline constexpr const char* kParticipantShm = "ve_participant_shm";
-/// UDPv4 only: remote consumers, other DDS implementations, loopback measurements.
+/// UDPv4 only, the same as kParticipant.
 inline constexpr const char* kParticipantUdp = "ve_participant_udp";
 inline constexpr const char* kStateWriter = "ve_state_writer";
 inline constexpr const char* kStateReader = "ve_state_reader";
@@ -54,22 +55,17 @@ inline constexpr const char* kCalibrationStatusWriter = "ve_calibration_status_w
 inline constexpr const char* kCalibrationStatusReader = "ve_calibration_status_reader";
 }  // namespace profile
 
-/// Buffer sizes of the product's transports (built-in QoS; the same values as the
-/// ve_shm / ve_udp descriptors and ve_state_reader in deploy/dds-profiles.xml).
-/// Sized so that a reader descheduled for tens of ms loses nothing of the state
-/// stream (3 axes x 4 kHz = 12,000 datagrams/s on one socket, about 1.3 KiB of
-/// kernel buffer each): see README.md, "DDS interface".
+/// Buffer sizes of the product's transport (built-in QoS; the same values as the
+/// ve_udp descriptor and ve_state_reader in deploy/dds-profiles.xml). Sized so that
+/// a reader descheduled for tens of ms loses nothing of the state stream (3 axes x
+/// 4 kHz = 12,000 datagrams/s on one socket, about 1.3 KiB of kernel buffer each):
+/// see README.md, "DDS interface". The product has no shared-memory transport
+/// (crash isolation: component/app/dds_io.cpp, udp_only(); docs/dds-integration.md).
 namespace transport {
 /// SO_RCVBUF asked for (the kernel doubles it, capped at net.core.rmem_max): with
 /// 4 MiB about 6,500 datagrams, 0.5 s of the 3-axis stream; the Linux default of
 /// 208 KiB held 166, 14 ms (bench_soak).
 inline constexpr std::uint32_t kUdpReceiveBufferBytes = 4u * 1024u * 1024u;
-/// Shared memory: this participant's segment (the buffers it sends, until every
-/// reader has taken them: about 250 bytes a sample, 2 MiB for one reader with a
-/// full queue) and the queue of the ports it receives on (Fast DDS's default 512
-/// messages is 43 ms of the 3-axis stream; 8192 is 0.68 s).
-inline constexpr std::uint32_t kShmSegmentBytes = 4u * 1024u * 1024u;
-inline constexpr std::uint32_t kShmPortQueueCapacity = 8192u;
 /// ve_state_reader's history depth per axis instance (64 ms at 4 kHz).
 inline constexpr std::int32_t kStateReaderDepth = 256;
 }  // namespace transport
@@ -89,13 +85,11 @@ struct DdsOptions {
   /// endpoints. Default from the environment: VE_DDS_TYPE_INFORMATION=1 turns it on.
   bool type_information = type_information_from_env();
   static bool type_information_from_env();
-  /// Built-in QoS only (no participant profile): also receive over shared memory,
-  /// i.e. announce shared-memory locators besides UDPv4 (Fast DDS's default
-  /// participant). Off by default: the process then receives over UDPv4 only and
-  /// still sends over shared memory to every peer on the host that offers it, so
-  /// that a restart after a crash is not held up by peers writing into the dead
-  /// process' shared-memory ports (see DdsContext::create). Meant for test and
-  /// bench subscribers standing in for a consumer with Fast DDS's defaults.
+  /// Built-in QoS only (no participant profile): Fast DDS's default transports
+  /// (shared memory and UDPv4) instead of the product's UDPv4 only. Off by
+  /// default: the product never uses shared memory (crash isolation, see
+  /// udp_only() in dds_io.cpp). Meant for test and bench subscribers standing in
+  /// for a consumer with Fast DDS's defaults.
   bool receive_over_shm = false;
 };
 
@@ -156,14 +150,16 @@ class StateWriter {
   /// (or, without profiles, offers none).
   StateWriter(DdsContext& ctx, double deadline_ms);
   ~StateWriter();
-  bool ok() const { return writer_ != nullptr; }
+  /// The QoS are consistent (a writer can be made from them) and there is a publisher.
+  bool ok() const { return ok_; }
   bool from_profile() const { return from_profile_; }
   double deadline_ms() const { return deadline_ms_; }
 
   /// Before publishing starts (not thread-safe): an axis this writer publishes.
   /// Its deadline misses are counted per instance and logged once per episode
   /// (warn at the first miss, info when it is over). The axis gets its own
-  /// DataWriter on the topic (same QoS). Returns the slot, -1 on failure.
+  /// DataWriter on the topic (same QoS), the only state writer of that axis: a
+  /// reader matches one state writer per axis. Returns the slot, -1 on failure.
   int add_axis(std::uint32_t axis_id, const std::string& name);
   const DeadlineCounters& counters(int slot) const;
   /// From the axis thread, now and then: ends (and logs) a miss episode after a
@@ -174,8 +170,8 @@ class StateWriter {
 
   /// The axis thread's write, through the axis' own writer.
   bool write(int slot, const ve::dds::EncoderState& sample);
-  /// Thread-safe: Fast DDS serialises writes per writer. Finds the axis' writer
-  /// (the shared one for an axis that was not added).
+  /// Thread-safe: Fast DDS serialises writes per writer. Finds the axis' writer;
+  /// false for an axis that was not added.
   bool write(const ve::dds::EncoderState& sample);
   /// Offered deadline periods missed by the added axes: whole periods without a write,
   /// counted when Fast DDS reports a miss (its early reports are counted apart).
@@ -183,6 +179,7 @@ class StateWriter {
   std::uint64_t deadline_early_reports() const;
   /// Offered deadline misses of one axis instance.
   std::uint64_t deadline_missed(std::uint32_t axis_id) const;
+  /// Readers matched with the axes' writers (the most any one of them has).
   int matched_readers() const;
 
  private:
@@ -195,7 +192,7 @@ class StateWriter {
   std::unique_ptr<Listener> listener_;
   std::vector<std::unique_ptr<Slot>> slots_;
   std::unique_ptr<eprosima::fastdds::dds::DataWriterQos> qos_;
-  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
+  bool ok_ = false;
   bool from_profile_ = false;
   double deadline_ms_ = 0.0;
   std::int64_t deadline_ns_ = 0;

@@ -223,28 +223,30 @@ bool SocketCanSource::receive_some() {
       }
     }
     if (rx_ns == 0) rx_ns = realtime_ns();
-    bool is_fd;
-    if (got == static_cast<ssize_t>(CANFD_MTU)) {
-      is_fd = true;
-    } else if (got == static_cast<ssize_t>(CAN_MTU)) {
-      is_fd = false;
-    } else {
+    if (got != static_cast<ssize_t>(CANFD_MTU) && got != static_cast<ssize_t>(CAN_MTU)) {
+      // Neither a classic nor an FD frame: counted with the wrong-format frames.
       c_.bad_frames.fetch_add(1, std::memory_order_relaxed);
+      c_.bad_format.fetch_add(1, std::memory_order_relaxed);
       continue;
     }
-    if (frame.can_id & CAN_ERR_FLAG) {
-      handle_error_frame(frame.can_id & CAN_ERR_MASK, frame.data, frame.len);
-      continue;
-    }
-    if (frame.can_id & CAN_RTR_FLAG) {
-      c_.foreign_frames.fetch_add(1, std::memory_order_relaxed);
-      continue;
-    }
-    const bool ext = (frame.can_id & CAN_EFF_FLAG) != 0;
-    const std::uint32_t id = frame.can_id & (ext ? CAN_EFF_MASK : CAN_SFF_MASK);
-    handle_frame(ext ? (id | 0x80000000u) : id, is_fd, frame.data, frame.len, rx_ns);
+    process_frame(frame.can_id, got == static_cast<ssize_t>(CANFD_MTU), frame.data, frame.len, rx_ns);
   }
   return true;
+}
+
+void SocketCanSource::process_frame(std::uint32_t can_id, bool is_fd, const std::uint8_t* data, int len,
+                                    std::int64_t rx_ns) {
+  if (can_id & CAN_ERR_FLAG) {
+    handle_error_frame(can_id & CAN_ERR_MASK, data, len);
+    return;
+  }
+  if (can_id & CAN_RTR_FLAG) {  // a remote request carries no data
+    c_.foreign_frames.fetch_add(1, std::memory_order_relaxed);
+    return;
+  }
+  const bool ext = (can_id & CAN_EFF_FLAG) != 0;
+  const std::uint32_t id = can_id & (ext ? CAN_EFF_MASK : CAN_SFF_MASK);
+  handle_frame(ext ? (id | 0x80000000u) : id, is_fd, data, len, rx_ns);
 }
 
 void SocketCanSource::handle_error_frame(std::uint32_t err, const std::uint8_t* data, int len) {
@@ -290,6 +292,7 @@ void SocketCanSource::handle_frame(std::uint32_t tagged_id, bool is_fd, const st
   }
   if (st != DecodeStatus::ok) {
     c_.bad_frames.fetch_add(1, std::memory_order_relaxed);
+    (st == DecodeStatus::wrong_length ? c_.bad_length : c_.bad_format).fetch_add(1, std::memory_order_relaxed);
     return;
   }
   const std::int64_t period = l.sample_period_ns();
@@ -400,6 +403,8 @@ SocketCanCounters SocketCanSource::counters() const {
   r.lost_samples = ld(c_.lost_samples);
   r.late_frames = ld(c_.late_frames);
   r.bad_frames = ld(c_.bad_frames);
+  r.bad_length = ld(c_.bad_length);
+  r.bad_format = ld(c_.bad_format);
   r.foreign_frames = ld(c_.foreign_frames);
   r.error_frames = ld(c_.error_frames);
   r.bus_warnings = ld(c_.bus_warnings);
@@ -415,18 +420,26 @@ SocketCanCounters SocketCanSource::counters() const {
 
 std::string SocketCanSource::stats() const {
   const SocketCanCounters c = counters();
-  char buf[512];
+  const CanLayout& l = opt_.layout;
+  char buf[768];
+  // Every frame the socket delivered and did not use is counted by its reason (late,
+  // bad_length, bad_format, foreign, error frames; kernel queue and ring overflows).
+  // Frames whose id the kernel filter does not pass never reach the process and are
+  // counted nowhere: the filter is stated with the counters.
   std::snprintf(buf, sizeof buf,
-                "frames=%llu samples=%llu gaps=%llu lost=%llu late=%llu bad=%llu foreign=%llu errframes=%llu "
-                "warn=%llu passive=%llu busoff=%llu other_err=%llu kdrops=%llu overruns=%llu reconnects=%llu "
-                "sockerr=%llu bus=%s",
+                "frames=%llu samples=%llu gaps=%llu lost=%llu dropped: late=%llu bad=%llu (length=%llu "
+                "format=%llu) foreign=%llu kdrops=%llu overruns=%llu; errframes=%llu warn=%llu passive=%llu "
+                "busoff=%llu other_err=%llu reconnects=%llu sockerr=%llu bus=%s; kernel filter %s id 0x%X mask "
+                "0x%X (frames with other ids are not delivered, not counted)",
                 (unsigned long long)c.frames, (unsigned long long)c.samples, (unsigned long long)c.gaps,
                 (unsigned long long)c.lost_samples, (unsigned long long)c.late_frames, (unsigned long long)c.bad_frames,
-                (unsigned long long)c.foreign_frames, (unsigned long long)c.error_frames,
+                (unsigned long long)c.bad_length, (unsigned long long)c.bad_format,
+                (unsigned long long)c.foreign_frames, (unsigned long long)c.kernel_drops,
+                (unsigned long long)c.ring_overruns, (unsigned long long)c.error_frames,
                 (unsigned long long)c.bus_warnings, (unsigned long long)c.bus_passives, (unsigned long long)c.bus_offs,
-                (unsigned long long)c.other_errors, (unsigned long long)c.kernel_drops,
-                (unsigned long long)c.ring_overruns, (unsigned long long)c.reconnects,
-                (unsigned long long)c.socket_errors, to_string(bus_state()));
+                (unsigned long long)c.other_errors, (unsigned long long)c.reconnects,
+                (unsigned long long)c.socket_errors, to_string(bus_state()), l.extended_id ? "extended" : "standard",
+                l.can_id, l.id_mask());
   return buf;
 }
 

@@ -47,8 +47,14 @@ struct SocketCanCounters {
   std::uint64_t gaps = 0;           ///< sequence jumps (one per burst of lost frames)
   std::uint64_t lost_samples = 0;   ///< samples missing in those jumps
   std::uint64_t late_frames = 0;    ///< duplicate or out-of-order frames (dropped)
-  std::uint64_t bad_frames = 0;     ///< right id, wrong length or classic/FD format (dropped)
-  std::uint64_t foreign_frames = 0; ///< other ids that got past the kernel filter (dropped)
+  std::uint64_t bad_frames = 0;     ///< right id, wrong length or format (dropped): bad_length + bad_format
+  std::uint64_t bad_length = 0;     ///< ... payload not the layout's frame_length
+  std::uint64_t bad_format = 0;     ///< ... classic/FD mismatch, or neither a classic nor an FD frame
+  /// Frames the kernel filter passed that carry no data of this layout (remote
+  /// requests, ids the filter's mask lets through that the layout does not have)
+  /// (dropped). Frames whose id the kernel filter (layout can_id / id_mask) does not
+  /// pass never reach the process and are not counted anywhere.
+  std::uint64_t foreign_frames = 0;
   std::uint64_t error_frames = 0;   ///< CAN error frames (CAN_ERR_FLAG)
   std::uint64_t bus_warnings = 0;   ///< error frames reporting error-warning (rx or tx)
   std::uint64_t bus_passives = 0;   ///< ... error-passive
@@ -89,15 +95,22 @@ class SocketCanSource final : public drivers::SensorSource {
   BusState bus_state() const { return static_cast<BusState>(bus_state_.load(std::memory_order_relaxed)); }
   /// True while the socket is open and bound (false while the interface is down/gone).
   bool connected() const { return connected_.load(std::memory_order_relaxed); }
-  /// One line with every counter, for logs.
+  /// One line with every counter, the dropped frames by reason, and the kernel filter
+  /// (whose rejected frames are not counted), for logs.
   std::string stats() const override;
+
+  /// The receive thread's step for one frame the socket delivered: `can_id` with the
+  /// kernel's CAN_EFF/RTR/ERR_FLAG bits, as in struct can_frame. Public so that the
+  /// counting can be tested without a CAN kernel; call it only on a source whose
+  /// receive thread does not run (ok() false).
+  void process_frame(std::uint32_t can_id, bool fd, const std::uint8_t* data, int len, std::int64_t rx_ns);
 
   const SocketCanOptions& options() const { return opt_; }
 
  private:
   struct AtomicCounters {
     std::atomic<std::uint64_t> frames{0}, samples{0}, gaps{0}, lost_samples{0}, late_frames{0}, bad_frames{0},
-        foreign_frames{0}, error_frames{0}, bus_warnings{0}, bus_passives{0}, bus_offs{0}, other_errors{0},
+        bad_length{0}, bad_format{0}, foreign_frames{0}, error_frames{0}, bus_warnings{0}, bus_passives{0}, bus_offs{0}, other_errors{0},
         kernel_drops{0}, ring_overruns{0}, reconnects{0}, socket_errors{0};
   };
 

@@ -228,8 +228,8 @@ TEST(DdsInterface, LateJoiningSubscriberReceivesTheAxisDescription) {
   EXPECT_TRUE(wait_until([&] { return probe.states_of(1) > 400 && probe.diagnostics_of(1) > 2; }, patience(10s)));
   // It counts the writers it matched, though they were there before its readers were
   // (matches made before the listener was attached gave no callback): the encoder's
-  // two state writers (the axis' own and the shared one) and its diagnostics writer.
-  EXPECT_EQ(probe.reader->matched_writers(), 2);
+  // one state writer of the axis and its diagnostics writer.
+  EXPECT_EQ(probe.reader->matched_writers(), 1);
   EXPECT_EQ(probe.reader->matched_diagnostics_writers(), 1);
 
   pub.signal(SIGTERM);

@@ -6,19 +6,127 @@
  *
  * Prints the first samples and a summary; exit 0 when COUNT valid samples arrived
  * with the expected axis id, strictly increasing sequence numbers, VALID status
- * (after the first 400) and positions within TOLERANCE_M of POSITION_M; 1 otherwise. */
+ * (after the first 400) and positions within TOLERANCE_M of POSITION_M; 1 otherwise.
+ *
+ *   ve_cyclone_subscriber --follow DOMAIN DURATION_S
+ *
+ * Follows the stream across publisher restarts (tests/integration/publisher_kill_test.cpp)
+ * and prints, one line each, flushed: READY; RESUME rx_ns=T seq=S source_ns=U
+ * silent_ms=G at the first sample after a silence of at least 50 ms, a sequence
+ * number that did not rise, or the very first sample (silent_ms=-1; T is
+ * CLOCK_REALTIME at reception); ALIVE rx_ns=T received=N every 250 ms; END
+ * received=N resumes=R. Ends after DURATION_S or at SIGINT/SIGTERM: exit 0. */
 #include <inttypes.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "dds/dds.h"
 #include "VirtualEncoder.h"
 
 #define BATCH 64
 
+static volatile sig_atomic_t g_stop = 0;
+static void on_signal(int sig) {
+  (void)sig;
+  g_stop = 1;
+}
+
+static int64_t realtime_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+}
+
+/* Best effort, volatile, keep last: compatible with the offered state QoS; no
+ * requested deadline (a requested one must be >= the offered 5 ms). */
+static dds_entity_t make_reader(dds_entity_t participant) {
+  const dds_entity_t topic = dds_create_topic(participant, &ve_dds_EncoderState_desc, "ve/encoder_state", NULL, NULL);
+  if (topic < 0) {
+    fprintf(stderr, "dds_create_topic: %s\n", dds_strretcode(-topic));
+    return topic;
+  }
+  dds_qos_t* qos = dds_create_qos();
+  dds_qset_reliability(qos, DDS_RELIABILITY_BEST_EFFORT, 0);
+  dds_qset_durability(qos, DDS_DURABILITY_VOLATILE);
+  dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, 256);
+  const dds_entity_t reader = dds_create_reader(participant, topic, qos, NULL);
+  dds_delete_qos(qos);
+  if (reader < 0) fprintf(stderr, "dds_create_reader: %s\n", dds_strretcode(-reader));
+  return reader;
+}
+
+static int follow(int argc, char** argv) {
+  if (argc < 4) {
+    fprintf(stderr, "usage: %s --follow DOMAIN DURATION_S\n", argv[0]);
+    return 2;
+  }
+  const dds_domainid_t domain = (dds_domainid_t)atoi(argv[2]);
+  const double duration_s = atof(argv[3]);
+  setvbuf(stdout, NULL, _IOLBF, 0);
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal;
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+  const dds_entity_t participant = dds_create_participant(domain, NULL, NULL);
+  if (participant < 0) {
+    fprintf(stderr, "dds_create_participant: %s\n", dds_strretcode(-participant));
+    return 1;
+  }
+  const dds_entity_t reader = make_reader(participant);
+  if (reader < 0) {
+    dds_delete(participant);
+    return 1;
+  }
+  printf("READY\n");
+  ve_dds_EncoderState samples[BATCH];
+  void* ptrs[BATCH];
+  dds_sample_info_t infos[BATCH];
+  for (int i = 0; i < BATCH; ++i) ptrs[i] = &samples[i];
+  uint64_t received = 0, resumes = 0, last_seq = 0;
+  int64_t last_rx = 0;
+  const int64_t end = realtime_ns() + (int64_t)(duration_s * 1e9);
+  int64_t next_alive = realtime_ns();
+  int rc = 0;
+  while (!g_stop && realtime_ns() < end) {
+    const int n = dds_take(reader, ptrs, infos, BATCH, BATCH);
+    if (n < 0) {
+      fprintf(stderr, "dds_take: %s\n", dds_strretcode(-n));
+      rc = 1;
+      break;
+    }
+    const int64_t now = realtime_ns();
+    for (int i = 0; i < n; ++i) {
+      if (!infos[i].valid_data) continue;
+      const ve_dds_EncoderState* s = &samples[i];
+      const int first = received == 0;
+      const int64_t silent = first ? -1 : now - last_rx;
+      if (first || silent >= 50000000LL || s->sequence_number <= last_seq) {
+        printf("RESUME rx_ns=%" PRId64 " seq=%" PRIu64 " source_ns=%" PRId64 " silent_ms=%.1f\n", now,
+               s->sequence_number, s->source_time_ns, first ? -1.0 : (double)silent * 1e-6);
+        ++resumes;
+      }
+      last_rx = now;
+      last_seq = s->sequence_number;
+      ++received;
+    }
+    if (now >= next_alive) {
+      printf("ALIVE rx_ns=%" PRId64 " received=%" PRIu64 "\n", now, received);
+      next_alive += 250000000LL;
+    }
+    if (n == 0) dds_sleepfor(DDS_MSECS(1));
+  }
+  dds_delete(participant);
+  printf("END received=%" PRIu64 " resumes=%" PRIu64 "\n", received, resumes);
+  return rc;
+}
+
 int main(int argc, char** argv) {
+  if (argc >= 2 && strcmp(argv[1], "--follow") == 0) return follow(argc, argv);
   if (argc < 4) {
     fprintf(stderr, "usage: %s DOMAIN COUNT TIMEOUT_S [AXIS_ID POSITION_M TOLERANCE_M]\n", argv[0]);
     return 2;
