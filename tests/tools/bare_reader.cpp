@@ -19,6 +19,7 @@
 //   RESUME rx_ns=T seq=S source_ns=U silent_ms=G      first sample after a silence of
 //       at least 50 ms, or a sequence number that did not rise (a new publisher),
 //       or the very first sample (silent_ms=-1); T is CLOCK_REALTIME at reception
+//   MATCHED rx_ns=T current=N change=C                a writer matched (C = 1) or went (C = -1)
 //   ALIVE rx_ns=T received=N                          every 250 ms
 //   END received=N resumes=R                          at a clean end
 // Ends after DURATION_S or at SIGINT/SIGTERM, deleting every entity: exit 0.
@@ -82,6 +83,11 @@ class Listener : public fdds::DataReaderListener {
       last_seq_ = s.sequence_number();
       received_.fetch_add(1);
     }
+  }
+  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& st) override {
+    std::printf("MATCHED rx_ns=%lld current=%d change=%d\n", static_cast<long long>(realtime_ns()), st.current_count,
+                st.current_count_change);
+    std::fflush(stdout);
   }
   std::uint64_t received() const { return received_.load(); }
   std::uint64_t resumes() const { return resumes_.load(); }
@@ -148,7 +154,8 @@ int main(int argc, char** argv) {
   }
   Listener listener;
   fdds::DataReader* reader =
-      topic == nullptr ? nullptr : subscriber->create_datareader(topic, rq, &listener, fdds::StatusMask::data_available());
+      topic == nullptr ? nullptr : subscriber->create_datareader(topic, rq, &listener,
+                                       fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
   int rc = 0;
   if (reader == nullptr) {
     std::fprintf(stderr, "bare_reader: cannot create the reader\n");
