@@ -1,6 +1,7 @@
 #include "calibration_log.hpp"
 
 #include "replay/replay_source.hpp"
+#include "signals.hpp"
 
 namespace ve::app {
 
@@ -15,6 +16,12 @@ bool read_calibration_log(const std::string& path, int hall_count, std::vector<c
   }
   return true;
 }
+
+namespace {
+/// The most rows a calibration log may have: they are all held in memory (about
+/// 150 bytes each, 1.2 GB at most); 8.4 million rows are 35 minutes at 4 kHz.
+constexpr std::size_t kMaxCalibrationRows = std::size_t{1} << 23;
+}  // namespace
 
 bool read_calibration_log_any(const std::string& path, int hall_count, std::vector<core::ReferenceSegment>& segments,
                               bool& has_reference, std::string& error) {
@@ -35,7 +42,19 @@ bool read_calibration_log_any(const std::string& path, int hall_count, std::vect
   std::int64_t period_ns = 0;
   bool open = false;
   drivers::ReadStatus st;
+  std::size_t rows = 0;
   while ((st = log.read(s)) == drivers::ReadStatus::ok) {
+    if (++rows > kMaxCalibrationRows) {
+      segments.clear();
+      error = path + ": more than " + std::to_string(kMaxCalibrationRows) +
+              " rows: too long for a calibration log (record the calibration motion alone)";
+      return false;
+    }
+    if ((rows & 4095) == 0 && termination_requested()) {
+      segments.clear();
+      error = path + ": reading interrupted by a signal";
+      return false;
+    }
     double x = 0.0;
     if (has_reference && !log.reference_position(x)) {
       open = false;

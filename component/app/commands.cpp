@@ -3,6 +3,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <signal.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -19,6 +21,7 @@
 #include "axis.hpp"
 #include "calibration_log.hpp"
 #include "calibration_service.hpp"
+#include "config/atomic_file.hpp"
 #include "config/calibration_file.hpp"
 #include "config/kept_position.hpp"
 #include "config/loader.hpp"
@@ -47,6 +50,45 @@ bool load_machine(const std::string& path, config::MachineConfig& out, const con
   }
   out = std::move(result.config);
   return true;
+}
+
+/// The calibration's directory is created if missing; false (with a message naming
+/// the path and the reason) when the file cannot be written there.
+bool prepare_output(const std::string& path, const char* what) {
+  const auto parent = std::filesystem::path(path).parent_path();
+  std::error_code ec;
+  if (!parent.empty() && !std::filesystem::is_directory(parent, ec)) {
+    const std::string why = config::why_not_writable(path);  // a regular file in the way, say
+    if (!why.empty() && std::filesystem::exists(parent, ec)) {
+      std::fprintf(stderr, "cannot write the %s: %s\n", what, why.c_str());
+      return false;
+    }
+    std::filesystem::create_directories(parent, ec);
+    if (ec) {
+      std::fprintf(stderr, "cannot write the %s '%s': cannot create directory '%s': %s\n", what, path.c_str(),
+                   parent.c_str(), ec.message().c_str());
+      return false;
+    }
+  }
+  const std::string why = config::why_not_writable(path);
+  if (!why.empty()) {
+    std::fprintf(stderr, "cannot write the %s: %s\n", what, why.c_str());
+    return false;
+  }
+  return true;
+}
+
+/// Whether two paths name the same existing file.
+bool same_file(const std::string& a, const std::string& b) {
+  std::error_code ec;
+  return std::filesystem::equivalent(a, b, ec) && !ec;
+}
+
+/// A job a signal ended before it was done: nothing was written.
+int interrupted(const char* what) {
+  std::fprintf(stderr, "\n%s interrupted by %s: nothing written\n", what,
+               termination_signal() == SIGTERM ? "SIGTERM" : "SIGINT");
+  return interrupted_exit_code();
 }
 
 const config::AxisConfig* find_axis(const config::MachineConfig& m, const std::string& name) {
@@ -642,7 +684,13 @@ int calibrate_command(const CalibrateOptions& options) {
   std::string out = options.out;
   if (out.empty()) out = axis.calibration_file;
   if (out.empty()) out = "calibration/" + axis.motor.name + ".cal.yaml";
-
+  if (!options.log.empty() && same_file(options.log, out)) {
+    std::fprintf(stderr, "--out %s is the log being read (--log %s): choose another calibration file\n", out.c_str(),
+                 options.log.c_str());
+    return 2;
+  }
+  // Where the calibration goes is checked before the work, not after minutes of it.
+  if (!prepare_output(out, "calibration file")) return 1;
   const bool tty = isatty(STDERR_FILENO);
   int last_percent = -1;
   auto progress = [&](const char* phase, double fraction) {
@@ -665,6 +713,7 @@ int calibrate_command(const CalibrateOptions& options) {
   if (!options.log.empty()) {
     bool has_reference = false;
     if (!read_calibration_log_any(options.log, axis.motor.hall.count, segments, has_reference, error)) {
+      if (termination_requested()) return interrupted("reading the calibration log");
       std::fprintf(stderr, "%s\n", error.c_str());
       return 2;
     }
@@ -680,10 +729,12 @@ int calibrate_command(const CalibrateOptions& options) {
       return 2;
     }
   } else if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error,
-                                          [&](double f) { progress("recording", f); })) {
+                                          [&](double f) { progress("recording", f); }, &termination_flag())) {
+    if (termination_requested()) return interrupted("the calibration run");
     std::fprintf(stderr, "\ncalibration run failed: %s\n", error.c_str());
     return 1;
   }
+  if (termination_requested()) return interrupted("the calibration run");
   if (tty) std::fprintf(stderr, "\n");
 
   core::Calibration cal;
@@ -695,15 +746,18 @@ int calibrate_command(const CalibrateOptions& options) {
     sc.accel_delay_s = options.accel_delay_us * 1e-6;
     if (tty) std::fprintf(stderr, "identifying without a reference ...\n");
     if (!core::identify_without_reference(axis.motor, segments, sc, cal, self_report, error)) {
-      std::fprintf(stderr, "calibration failed: %s\n", error.c_str());
+      std::fprintf(stderr, "calibration failed%s%s: %s\n", options.log.empty() ? "" : ": ", options.log.c_str(),
+                   error.c_str());
       return 1;
     }
     report = self_report.identification;
   } else if (!core::identify_with_reference(axis.motor, segments, core::IdentificationConfig{}, cal, report, error)) {
-    std::fprintf(stderr, "calibration failed: %s\n", error.c_str());
+    std::fprintf(stderr, "calibration failed%s%s: %s\n", options.log.empty() ? "" : ": ", options.log.c_str(),
+                 error.c_str());
     return 1;
   }
   config::stamp_calibration(cal);
+  if (termination_requested()) return interrupted("the calibration");
 
   const core::SelfCalibrationReport* self = no_reference ? &self_report : nullptr;
   const std::string summary = format_identification_report(axis, cal, report, {}, self);
@@ -712,13 +766,12 @@ int calibrate_command(const CalibrateOptions& options) {
     std::fprintf(stderr, "calibration NOT written: the result is poor (see above); --force writes it anyway\n");
     return 1;
   }
-  const auto parent = std::filesystem::path(out).parent_path();
-  if (!parent.empty()) std::filesystem::create_directories(parent);
   if (!report.good) {
     // --force writes a poor result only if `run` and `evaluate` would load it:
     // try it as they read it, from a scratch file beside the output.
     const std::string probe = out + ".force-check.tmp";
     std::string why;
+    config::register_scratch_file(probe);
     if (!config::write_calibration_file_atomic(probe, cal, why)) {
       why = "it cannot be written as a calibration file: " + why;
     } else {
@@ -727,25 +780,31 @@ int calibrate_command(const CalibrateOptions& options) {
     }
     std::error_code ignored;
     std::filesystem::remove(probe, ignored);
+    config::unregister_scratch_file(probe);
     if (!why.empty()) {
       std::printf("%s", summary.c_str());
       std::fprintf(stderr, "calibration NOT written, even with --force: %s\n", why.c_str());
       return 1;
     }
   }
+  if (termination_requested()) return interrupted("the calibration");
   if (!config::write_calibration_file_atomic(out, cal, error)) {
-    std::fprintf(stderr, "cannot write %s: %s\n", out.c_str(), error.c_str());
+    std::fprintf(stderr, "calibration NOT written: %s\n", error.c_str());
     return 1;
   }
   const std::string report_path = out + ".report.txt";
   std::string plot_error;
   const auto plots = write_calibration_plots(out, cal, report, plot_error);
-  if (!plot_error.empty()) std::fprintf(stderr, "warning: cannot write a plot: %s\n", plot_error.c_str());
-  if (!write_text_file_atomic(report_path, format_identification_report(axis, cal, report, plots, self), error))
-    std::fprintf(stderr, "warning: cannot write the report %s: %s\n", report_path.c_str(), error.c_str());
+  if (!plot_error.empty()) std::fprintf(stderr, "plot(s) NOT written: %s\n", plot_error.c_str());
+  const bool report_written =
+      write_text_file_atomic(report_path, format_identification_report(axis, cal, report, plots, self), error);
+  if (!report_written) std::fprintf(stderr, "report NOT written: %s\n", error.c_str());
   std::printf("%s", summary.c_str());
-  std::printf("calibration %s written to %s (report: %s)\n", cal.info.id.c_str(), out.c_str(), report_path.c_str());
-  return 0;
+  std::printf("calibration %s written to %s", cal.info.id.c_str(), out.c_str());
+  if (report_written) std::printf(" (report: %s)", report_path.c_str());
+  std::printf("\n");
+  // The calibration is in place; a report or plot that could not be written still fails the job.
+  return report_written && plot_error.empty() ? 0 : 1;
 }
 
 // ------------------------------------------------------------------- monitor

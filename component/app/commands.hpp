@@ -1,5 +1,8 @@
 // The subcommands of `virtual-encoder`. Each returns the process exit code:
-// 0 success, 1 the job failed (e.g. check found problems), 2 bad usage or input.
+// 0 success, 1 the job failed (e.g. check found problems, a write failed), 2 bad
+// usage or input, 128 + the signal when SIGINT/SIGTERM ended it before its job was
+// done (command_line.hpp, docs/command-line.md). The options come checked from
+// parse_command_line (command_line.hpp).
 #pragma once
 
 #include <cstdint>
@@ -64,6 +67,8 @@ struct RecordOptions {
   std::string out;             ///< raw log v1 to write
   double duration_s = 10.0;    ///< 0 = until the source ends or SIGINT/SIGTERM
   bool fast = false;           ///< do not pace a simulated or replayed source in real time
+  /// A source (a silent CAN bus) that delivers no first sample within this long fails the recording [s].
+  double first_sample_timeout_s = 5.0;
 };
 int record_command(const RecordOptions& options);
 
@@ -74,7 +79,8 @@ struct EvaluateOptions {
   std::string calibration;     ///< overrides the axis' calibration file
   std::string estimates;       ///< optional CSV of the estimates per sample
   bool json = false;
-  double home_m = -1.0;        ///< overrides homing.position_m when >= 0
+  /// Overrides homing.position_m; must lie inside the axis' travel (checked once the machine file is loaded).
+  std::optional<double> home_m;
   /// Against a ruler (ref_position_m, no truth): what is subtracted from the ruler's
   /// reading: "auto" (its mean difference from the estimate), "none" or metres.
   std::string ruler_offset = "auto";

@@ -2,18 +2,24 @@
 // causally over a log and scores it against the log's truth, else its reference
 // ruler, else reports how consistent the estimator was with itself.
 #include <fmt/printf.h>
+#include <signal.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <filesystem>
 #include <string>
 #include <vector>
 
 #include "axis.hpp"
 #include "commands.hpp"
+#include "config/atomic_file.hpp"
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "core/error_stats.hpp"
@@ -63,10 +69,25 @@ int record_command(const RecordOptions& options) {
   // The first sample tells which optional columns the source fills.
   core::RawSample s;
   // A live source (a CAN bus) may take a moment to deliver its first sample.
+  const auto first_deadline =
+      std::chrono::steady_clock::now() + std::chrono::duration<double>(options.first_sample_timeout_s);
   auto st = source->read(s);
-  for (int i = 0; st == drivers::ReadStatus::timeout && i < 250 && !wait_for_termination(0.0); ++i) st = source->read(s);
+  while (st == drivers::ReadStatus::timeout && !termination_requested() &&
+         std::chrono::steady_clock::now() < first_deadline)
+    st = source->read(s);
+  if (termination_requested()) {
+    std::fprintf(stderr, "record: interrupted by %s before the first sample: nothing written\n",
+                 termination_signal() == SIGTERM ? "SIGTERM" : "SIGINT");
+    return interrupted_exit_code();
+  }
+  if (st == drivers::ReadStatus::timeout) {
+    std::fprintf(stderr, "the source gave no sample within %g s (--first-sample-timeout): nothing written to %s\n",
+                 options.first_sample_timeout_s, options.out.c_str());
+    return 1;
+  }
   if (st != drivers::ReadStatus::ok) {
-    std::fprintf(stderr, "the source gave no sample: %s\n", source->last_error().c_str());
+    std::fprintf(stderr, "the source gave no sample%s%s: nothing written to %s\n",
+                 source->last_error().empty() ? "" : ": ", source->last_error().c_str(), options.out.c_str());
     return 1;
   }
   double reference = 0.0;
@@ -89,6 +110,13 @@ int record_command(const RecordOptions& options) {
     std::fprintf(stderr, "cannot write %s: %s\n", options.out.c_str(), error.c_str());
     return 1;
   }
+  // An interrupted recording leaves no PATH.partial behind (a signal ends it cleanly;
+  // a forced end removes it).
+  if (!writer.direct()) config::register_scratch_file(writer.partial_path());
+  auto give_up = [&] {
+    writer.discard();
+    config::unregister_scratch_file(writer.partial_path());
+  };
   const std::int64_t t0 = s.t_ns;
   const bool tty = isatty(STDERR_FILENO);
   std::uint64_t n = 0;
@@ -97,9 +125,10 @@ int record_command(const RecordOptions& options) {
   while (st == drivers::ReadStatus::ok) {
     const bool has_ref = cols.reference && source->reference_position(reference);
     if (!writer.write(s, cols.truth ? source->truth() : nullptr, has_ref ? &reference : nullptr)) {
-      std::fprintf(stderr, "\nrecording stopped: %s\n", writer.error().c_str());
-      code = 1;
-      break;
+      std::fprintf(stderr, "\nrecording failed: %s; nothing written to %s\n", writer.error().c_str(),
+                   options.out.c_str());
+      give_up();
+      return 1;
     }
     ++n;
     if (options.duration_s > 0 && static_cast<double>(s.t_ns - t0) * 1e-9 >= options.duration_s) break;
@@ -107,26 +136,32 @@ int record_command(const RecordOptions& options) {
     const auto now = std::chrono::steady_clock::now();
     if (now - last_check > std::chrono::milliseconds(200)) {
       last_check = now;
-      if (wait_for_termination(0.0)) break;
+      if (termination_requested()) break;
       if (tty) std::fprintf(stderr, "\rrecording %s: %.1f s, %llu samples", options.out.c_str(),
                             static_cast<double>(s.t_ns - t0) * 1e-9, static_cast<unsigned long long>(n));
     }
     st = source->read(s);
     // A silent moment on a live source is not the end of the recording.
-    while (st == drivers::ReadStatus::timeout && !wait_for_termination(0.0)) st = source->read(s);
+    while (st == drivers::ReadStatus::timeout && !termination_requested()) st = source->read(s);
   }
   if (st == drivers::ReadStatus::error) {
+    // What was recorded up to the error is kept (complete rows), and the error named.
     std::fprintf(stderr, "\nsource error: %s\n", source->last_error().c_str());
     code = 1;
   }
   if (tty) std::fprintf(stderr, "\n");
   if (!writer.close(error)) {
-    std::fprintf(stderr, "cannot finish %s: %s\n", options.out.c_str(), error.c_str());
+    std::fprintf(stderr, "cannot finish %s: %s; nothing written\n", options.out.c_str(), error.c_str());
+    give_up();
     return 1;
   }
-  std::printf("recorded %llu samples (%.3f s) of axis '%s' to %s%s%s\n", static_cast<unsigned long long>(n),
+  config::unregister_scratch_file(writer.partial_path());
+  std::printf("recorded %llu samples (%.3f s) of axis '%s' to %s%s%s%s\n", static_cast<unsigned long long>(n),
               static_cast<double>(s.t_ns - t0) * 1e-9, axis->name.c_str(), options.out.c_str(),
-              cols.truth ? ", with truth" : "", cols.reference ? ", with reference" : "");
+              cols.truth ? ", with truth" : "", cols.reference ? ", with reference" : "",
+              termination_signal() == SIGINT    ? " (ended by SIGINT)"
+              : termination_signal() == SIGTERM ? " (ended by SIGTERM)"
+                                                : "");
   return code;
 }
 
@@ -503,6 +538,78 @@ void print_consistency_text(ConsistencyCheck& c) {
 
 }  // namespace
 
+namespace {
+
+/// A CSV output written as PATH.partial and renamed to PATH once complete, so that
+/// PATH is complete or absent. A PATH that exists and is not a regular file (a
+/// FIFO, /dev/stdout) is written directly instead. Errors name the path and the reason.
+class OutputFile {
+ public:
+  ~OutputFile() { discard(); }
+
+  bool open(const std::string& path, std::string& error) {
+    path_ = path;
+    struct stat st {};
+    direct_ = ::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode);
+    if (direct_ && S_ISDIR(st.st_mode)) {
+      error = "cannot write '" + path + "': it is a directory";
+      return false;
+    }
+    target_ = direct_ ? path : path + ".partial";
+    if (!direct_) config::register_scratch_file(target_);
+    file_ = std::fopen(target_.c_str(), "w");
+    if (file_ == nullptr) {
+      error = "cannot write '" + target_ + "': " + std::strerror(errno);
+      if (!direct_) config::unregister_scratch_file(target_);
+      return false;
+    }
+    return true;
+  }
+  std::FILE* stream() const { return file_; }
+  /// Flush, fsync, close, rename; false (nothing left under PATH.partial) on an error.
+  bool commit(std::string& error) {
+    int e = 0;
+    if (std::fflush(file_) != 0 || std::ferror(file_)) e = errno ? errno : EIO;
+    if (e == 0 && !direct_ && ::fsync(fileno(file_)) != 0) e = errno;
+    const int c = std::fclose(file_);
+    file_ = nullptr;
+    if (e == 0 && c != 0) e = errno;
+    if (e == 0 && !direct_ && std::rename(target_.c_str(), path_.c_str()) != 0) e = errno;
+    if (e != 0) {
+      error = "cannot write '" + path_ + "': " + std::strerror(e);
+      discard();
+      return false;
+    }
+    if (!direct_) config::unregister_scratch_file(target_);
+    committed_ = true;
+    return true;
+  }
+  /// Closes and removes the unfinished PATH.partial (nothing when committed).
+  void discard() {
+    if (file_ != nullptr) std::fclose(file_);
+    file_ = nullptr;
+    if (!direct_ && !committed_ && !target_.empty()) {
+      ::unlink(target_.c_str());
+      config::unregister_scratch_file(target_);
+      target_.clear();
+    }
+  }
+
+ private:
+  std::string path_, target_;
+  std::FILE* file_ = nullptr;
+  bool direct_ = false;
+  bool committed_ = false;
+};
+
+/// The most rows evaluate scores: a few numbers per row are kept (at most about 1 GB);
+/// 67 million rows are 4.6 hours at 4 kHz.
+constexpr std::uint64_t kMaxEvaluateRows = std::uint64_t{1} << 26;
+
+std::string compact(double x) { return fmt::sprintf("%.6g", x); }
+
+}  // namespace
+
 int evaluate_command(const EvaluateOptions& options) {
   RulerOffset ruler_offset;
   if (!parse_ruler_offset(options.ruler_offset, ruler_offset)) {
@@ -527,7 +634,24 @@ int evaluate_command(const EvaluateOptions& options) {
   }
   config::AxisConfig axis = *found;
   if (!options.calibration.empty()) axis.calibration_file = options.calibration;
-  if (options.home_m >= 0) axis.homing.position_m = options.home_m;
+  if (options.home_m) {
+    const double home = *options.home_m;
+    if (!std::isfinite(home) || home < 0.0 || home > axis.motor.travel_m) {
+      std::fprintf(stderr, "--home: %s m is outside the travel of axis '%s' (motor %s): [0, %s] m\n",
+                   compact(home).c_str(), axis.name.c_str(), axis.motor.name.c_str(),
+                   compact(axis.motor.travel_m).c_str());
+      return 2;
+    }
+    axis.homing.position_m = home;
+  }
+  if (!options.estimates.empty()) {
+    std::error_code ec;
+    if (std::filesystem::equivalent(options.estimates, options.log, ec) && !ec) {
+      std::fprintf(stderr, "--estimates %s is the log being read (--log %s): choose another file\n",
+                   options.estimates.c_str(), options.log.c_str());
+      return 2;
+    }
+  }
   core::Calibration cal;
   bool calibrated = false;
   std::string error;
@@ -550,16 +674,18 @@ int evaluate_command(const EvaluateOptions& options) {
   double w0 = -1e300, w1 = 1e300;
   const bool windowed = log.meta().eval_window(w0, w1);
 
+  OutputFile estimates;
   std::FILE* est_out = nullptr;
-  std::string est_tmp;
   if (!options.estimates.empty()) {
-    est_tmp = options.estimates + ".partial";
-    est_out = std::fopen(est_tmp.c_str(), "w");
-    if (est_out == nullptr) {
-      std::fprintf(stderr, "cannot write %s\n", est_tmp.c_str());
+    if (!estimates.open(options.estimates, error)) {
+      std::fprintf(stderr, "--estimates: %s\n", error.c_str());
       return 1;
     }
-    std::fprintf(est_out, "t_s,position_m,velocity_mps,position_std_m,velocity_std_mps,status\n");
+    est_out = estimates.stream();
+    if (std::fprintf(est_out, "t_s,position_m,velocity_mps,position_std_m,velocity_std_mps,status\n") < 0) {
+      std::fprintf(stderr, "--estimates: cannot write '%s': %s\n", options.estimates.c_str(), std::strerror(errno));
+      return 1;
+    }
   }
 
   core::AxisPipeline pipeline(pipeline_config(axis, cal, calibrated), cal.table);
@@ -571,12 +697,26 @@ int evaluate_command(const EvaluateOptions& options) {
   std::uint64_t rows = 0;
   drivers::ReadStatus st;
   while ((st = log.read(s)) == drivers::ReadStatus::ok) {
-    ++rows;
+    if (termination_requested()) {
+      std::fprintf(stderr, "evaluate: interrupted by %s after %llu rows: nothing written\n",
+                   termination_signal() == SIGTERM ? "SIGTERM" : "SIGINT", static_cast<unsigned long long>(rows));
+      return interrupted_exit_code();  // the unfinished estimates are removed
+    }
+    if (++rows > kMaxEvaluateRows) {
+      std::fprintf(stderr, "%s: more than %llu rows: too long to evaluate in one run (split the log)\n",
+                   options.log.c_str(), static_cast<unsigned long long>(kMaxEvaluateRows));
+      return 2;
+    }
     const auto& est = pipeline.step(s);
     const double t = static_cast<double>(s.t_ns) * 1e-9;
-    if (est_out)
-      std::fprintf(est_out, "%.9f,%.9f,%.9f,%.3e,%.3e,%u\n", t, est.position_m, est.velocity_mps, est.position_std_m,
-                   est.velocity_std_mps, est.status);
+    if (est_out != nullptr &&
+        std::fprintf(est_out, "%.9f,%.9f,%.9f,%.3e,%.3e,%u\n", t, est.position_m, est.velocity_mps,
+                     est.position_std_m, est.velocity_std_mps, est.status) < 0) {
+      // errno is the write's own here (a full disk, a file size limit).
+      std::fprintf(stderr, "--estimates: cannot write '%s': %s; nothing written\n", options.estimates.c_str(),
+                   std::strerror(errno));
+      return 1;  // the unfinished estimates are removed
+    }
     if (t < w0 || t > w1) continue;
     if (basis == Basis::ruler) {
       double ref = 0.0;
@@ -590,19 +730,11 @@ int evaluate_command(const EvaluateOptions& options) {
   }
   if (st == drivers::ReadStatus::error) {
     std::fprintf(stderr, "%s\n", log.last_error().c_str());
-    if (est_out) {
-      std::fclose(est_out);
-      std::remove(est_tmp.c_str());
-    }
-    return 2;
+    return 2;  // the unfinished estimates are removed
   }
-  if (est_out) {
-    const bool ok = std::fflush(est_out) == 0 && fsync(fileno(est_out)) == 0;
-    std::fclose(est_out);
-    if (!ok || std::rename(est_tmp.c_str(), options.estimates.c_str()) != 0) {
-      std::fprintf(stderr, "cannot write %s\n", options.estimates.c_str());
-      return 1;
-    }
+  if (est_out != nullptr && !estimates.commit(error)) {
+    std::fprintf(stderr, "--estimates: %s\n", error.c_str());
+    return 1;
   }
   if (basis == Basis::ruler) ruler.finish(ruler_offset);
   const std::uint64_t evaluated = basis == Basis::truth   ? e.position_m.count()

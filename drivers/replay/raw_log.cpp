@@ -1,6 +1,7 @@
 #include "replay/raw_log.hpp"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -283,6 +284,17 @@ bool RawLogReader::open(const std::string& path) {
   fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd_ < 0) {
     add_error(0, 0, "", std::string("cannot open: ") + std::strerror(errno));
+    done_ = true;
+    return false;
+  }
+  struct stat st {};
+  if (::fstat(fd_, &st) != 0 || !(S_ISREG(st.st_mode) || S_ISFIFO(st.st_mode))) {
+    const char* kind = S_ISDIR(st.st_mode)                           ? "a directory"
+                       : S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode) ? "a device"
+                       : S_ISSOCK(st.st_mode)                       ? "a socket"
+                                                                    : "not a regular file";
+    add_error(0, 0, "", std::string("cannot read: it is ") + kind + ", not a raw log file (a regular file or a FIFO)");
+    close_fd();
     done_ = true;
     return false;
   }
@@ -697,6 +709,14 @@ RawLogWriter::~RawLogWriter() {
   }
 }
 
+void RawLogWriter::discard() {
+  if (fd_ < 0) return;
+  ::close(fd_);
+  fd_ = -1;
+  buf_.clear();
+  if (!direct_) ::unlink(partial_path().c_str());
+}
+
 bool RawLogWriter::fail(std::string message) {
   error_ = std::move(message);
   return false;
@@ -712,6 +732,7 @@ bool RawLogWriter::open(const std::string& path, const Columns& cols,
   error_.clear();
   rows_ = 0;
   io_failed_ = false;
+  direct_ = false;
   have_last_t_ = false;
   if (path.empty()) return fail(error = "raw log writer: empty path");
   if (cols.hall_count < 1 || cols.hall_count > core::kMaxHalls) {
@@ -754,13 +775,22 @@ bool RawLogWriter::open(const std::string& path, const Columns& cols,
     return false;
   }
 
+  struct stat st {};
+  const bool exists = ::stat(path.c_str(), &st) == 0;
+  if (exists && S_ISDIR(st.st_mode)) {
+    error = error_ = "raw log writer: cannot write " + path + ": it is a directory";
+    return false;
+  }
+  const bool direct = exists && !S_ISREG(st.st_mode);
   const std::string partial = path + ".partial";
-  const int fd = ::open(partial.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  const std::string target = direct ? path : partial;
+  const int fd = ::open(target.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) {
-    error = error_ = "raw log writer: cannot create " + partial + ": " + std::strerror(errno);
+    error = error_ = "raw log writer: cannot create " + target + ": " + std::strerror(errno);
     return false;
   }
   fd_ = fd;
+  direct_ = direct;
   path_ = path;
   cols_ = cols;
   buf_.clear();
@@ -776,7 +806,7 @@ bool RawLogWriter::flush() {
   if (!write_all(fd_, buf_.data(), buf_.size(), why)) {
     io_failed_ = true;  // part of the buffer may be on disk: retrying would duplicate it
     buf_.clear();
-    return fail("raw log writer: write to " + partial_path() + ": " + why);
+    return fail("raw log writer: write to " + (direct_ ? path_ : partial_path()) + ": " + why);
   }
   buf_.clear();
   return true;
@@ -857,9 +887,11 @@ bool RawLogWriter::close(std::string& error) {
     error = error_ = "raw log writer: not open";
     return false;
   }
-  const std::string partial = partial_path();
+  const std::string partial = direct_ ? path_ : partial_path();
   bool ok = flush();
-  if (ok && ::fsync(fd_) != 0) ok = fail("raw log writer: fsync " + partial + ": " + std::strerror(errno));
+  // A FIFO or a terminal cannot be synced (EINVAL); only a file's data needs to be.
+  if (ok && ::fsync(fd_) != 0 && !(direct_ && (errno == EINVAL || errno == EROFS)))
+    ok = fail("raw log writer: fsync " + partial + ": " + std::strerror(errno));
   if (::close(fd_) != 0 && ok) ok = fail("raw log writer: close " + partial + ": " + std::strerror(errno));
   fd_ = -1;
   buf_.clear();
@@ -867,6 +899,7 @@ bool RawLogWriter::close(std::string& error) {
     error = error_;
     return false;
   }
+  if (direct_) return true;
   if (::rename(partial.c_str(), path_.c_str()) != 0) {
     error = error_ = "raw log writer: rename " + partial + " -> " + path_ + ": " + std::strerror(errno);
     return false;

@@ -86,6 +86,8 @@
 
 namespace ve::replay {
 
+/// The reader reads regular files and FIFOs (a pipe from another program); a
+/// directory, a device (/dev/zero) or a socket is refused with the reason.
 /// Longest line the reader accepts, in bytes, not counting the line end.
 inline constexpr std::size_t kMaxLineBytes = 65536;
 /// The reader keeps at most this many errors in errors(); later ones are counted
@@ -195,7 +197,9 @@ class RawLogReader {
 
 /// Writes to PATH.partial; close() flushes, fsyncs, renames it to PATH (replacing
 /// any file there) and fsyncs the directory, so an interrupted recording never
-/// leaves a file under PATH that looks complete.
+/// leaves a file under PATH that looks complete. A PATH that exists and is not a
+/// regular file or a directory (a FIFO, /dev/stdout, a terminal) is written
+/// directly instead (direct() is true; there is no PATH.partial then).
 class RawLogWriter {
  public:
   struct Columns {
@@ -233,7 +237,13 @@ class RawLogWriter {
   /// and only the directory fsync failed).
   bool close(std::string& error);
 
+  /// Closes the file without finishing it and removes PATH.partial (a failed
+  /// recording leaves nothing behind). Nothing to do when not open.
+  void discard();
+
   bool is_open() const { return fd_ >= 0; }
+  /// PATH is written directly (it is a FIFO or a device), without PATH.partial.
+  bool direct() const { return direct_; }
   const std::string& error() const { return error_; }
   std::uint64_t rows_written() const { return rows_; }
   const std::string& path() const { return path_; }
@@ -250,6 +260,7 @@ class RawLogWriter {
   std::string error_;
   std::uint64_t rows_ = 0;
   bool io_failed_ = false;  // a write to the file failed: nothing more is accepted
+  bool direct_ = false;     // PATH itself is written (not a regular file)
   bool have_last_t_ = false;
   std::int64_t last_t_ns_ = 0;
 };

@@ -8,7 +8,8 @@ SECONDS_PER_TARGET="${1:-20}"
 BUILD=build-fuzz
 CC=clang CXX=clang++ cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DVE_FUZZ=ON \
   -DVE_BUILD_BENCHMARKS=OFF >/dev/null
-targets=(fuzz_machine_config fuzz_calibration_file fuzz_raw_log fuzz_can_layout fuzz_can_frame fuzz_kept_position)
+targets=(fuzz_machine_config fuzz_calibration_file fuzz_raw_log fuzz_can_layout fuzz_can_frame fuzz_kept_position
+  fuzz_command_line)
 cmake --build "$BUILD" --target "${targets[@]}"
 status=0
 for t in "${targets[@]}"; do
@@ -20,6 +21,7 @@ for t in "${targets[@]}"; do
     fuzz_can_layout) seeds=tests/fuzz/corpus/can_layout ;;
     fuzz_can_frame) seeds=tests/fuzz/corpus/can_frame ;;
     fuzz_kept_position) seeds=tests/fuzz/corpus/kept_position ;;
+    fuzz_command_line) seeds=tests/fuzz/corpus/command_line ;;
   esac
   work="$BUILD/corpus/$corpus_name"
   mkdir -p "$work"
