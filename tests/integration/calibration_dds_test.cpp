@@ -21,6 +21,7 @@
 #include "process.hpp"
 #include "speed.hpp"
 #include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -145,9 +146,10 @@ struct Requester {
 constexpr std::uint32_t kAxis = 7;
 
 TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing) {
+  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
   TempDir dir;
   const fs::path machine = make_machine(dir.path);
-  const int domain = 91;
+  const int domain = ve::test::dds_domain();
   Requester req(domain);
   ASSERT_TRUE(req.ok());
   ChildProcess pub(run_args(machine, domain), (dir.path / "run.log").string());
@@ -261,7 +263,7 @@ TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing)
 TEST(CalibrationDds, AbortStopsItPromptlyAndWritesNothing) {
   TempDir dir;
   const fs::path machine = make_machine(dir.path);
-  const int domain = 92;
+  const int domain = ve::test::dds_domain();
   Requester req(domain);
   ASSERT_TRUE(req.ok());
   ChildProcess pub(run_args(machine, domain), (dir.path / "run.log").string());
@@ -295,10 +297,11 @@ TEST(CalibrationDds, AbortStopsItPromptlyAndWritesNothing) {
               aborted.progress());
   EXPECT_EQ(aborted.state(), ve::dds::CALIBRATION_STATE_ABORTED) << aborted.message();
   EXPECT_EQ(aborted.message().rfind("aborted", 0), 0u) << aborted.message();
+  // Promptly: while it was still recording (progress 0.85 is the whole recording). The
+  // recording is work, not waiting (at real speed the whole of it takes about 0.35 s
+  // here): a slower build or a busier host slows it as it slows the abort, unlike a
+  // wall-clock bound, and at real speed this is tighter than the 1 s bound it replaces.
   EXPECT_LT(aborted.progress(), 0.85);
-  if (ve::test::kRealTimeFigures) {
-    EXPECT_LT(seconds, 1.0);
-  }
   EXPECT_FALSE(fs::exists(dir.path / "calibration" / "short-12.cal.yaml"));
 
   // The encoder kept running.

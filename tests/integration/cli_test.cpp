@@ -20,6 +20,7 @@
 #include "core/status.hpp"
 #include "process.hpp"
 #include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -98,7 +99,7 @@ TEST(Cli, CalibrateThenCheckThenRunPublishesCalibratedPositions) {
   EXPECT_NE(out.find("calibration "), std::string::npos) << out;
 
   // The run publishes CALIBRATED samples at the right place.
-  const int domain = 73;
+  const int domain = ve::test::dds_domain();
   ve::app::DdsOptions o;
   o.domain = domain;
   std::string error;
@@ -151,7 +152,7 @@ namespace {
 // stdout must be the CSV stream and nothing else, the log goes to stderr.
 TEST(Cli, MonitorCsvStdoutIsOnlyCsvTheLogGoesToStderr) {
   TempDir dir;
-  const int domain = 86;
+  const int domain = ve::test::dds_domain();
   const std::string standstill = std::string(VE_SOURCE_DIR) + "/tests/integration/data/standstill.yaml";
   ChildProcess run({VE_BINARY, "run", "--config", standstill, "--domain", std::to_string(domain), "--duration", "60"},
                    (dir.path / "run.log").string());

@@ -21,6 +21,8 @@
 #include "core/status.hpp"
 #include "process.hpp"
 #include "speed.hpp"
+#include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -106,10 +108,12 @@ std::vector<std::string> run_args(const std::string& config, int domain, double 
 }
 
 TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
-  const int domain = 81;
+  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const int domain = ve::test::dds_domain();
+  ve::test::TempDir dir;
   Probe probe(domain, 20.0);
   ASSERT_TRUE(probe.ok());
-  ChildProcess pub(run_args(data("standstill.yaml"), domain, 60, 10), "/tmp/ve_it_diagnostics.log");
+  ChildProcess pub(run_args(data("standstill.yaml"), domain, 60, 10), (dir.path / "run.log").string());
   ASSERT_TRUE(pub.started());
   ASSERT_TRUE(wait_until([&] { return probe.reader->matched_diagnostics_writers() > 0; }, patience(15s))) << pub.log();
   ASSERT_TRUE(wait_until([&] { return probe.diagnostics_of(1) >= 15; }, patience(15s))) << pub.log();
@@ -156,7 +160,9 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
     EXPECT_NEAR(mean_rate, 4000.0, 400.0);
   }
   EXPECT_GT(d.sample_rate_hz(), 0.0);
-  EXPECT_NEAR(d.arrival_period_mean_us() * d.sample_rate_hz() * 1e-6, 1.0, 0.2);
+  if (kRealTimeFigures) {
+    EXPECT_NEAR(d.arrival_period_mean_us() * d.sample_rate_hz() * 1e-6, 1.0, 0.2);
+  }
   EXPECT_GT(d.arrival_jitter_us(), 0.0);
   EXPECT_GE(d.arrival_interval_max_us(), d.arrival_period_mean_us());
   EXPECT_GT(d.step_time_mean_us(), 0.0);
@@ -202,16 +208,17 @@ TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
 }
 
 TEST(DdsInterface, LateJoiningSubscriberReceivesTheAxisDescription) {
-  const int domain = 82;
-  ChildProcess pub(run_args(data("standstill.yaml"), domain, 60, 0), "/tmp/ve_it_latejoin.log");
+  const int domain = ve::test::dds_domain();
+  ve::test::TempDir dir;
+  ChildProcess pub(run_args(data("standstill.yaml"), domain, 60, 0), (dir.path / "run.log").string());
   ASSERT_TRUE(pub.started());
   // Let the publisher write its description long before anyone listens.
-  ASSERT_TRUE(wait_until([&] { return pub.log().find("rate=") != std::string::npos; }, 15s)) << pub.log();
+  ASSERT_TRUE(wait_until([&] { return pub.log().find("rate=") != std::string::npos; }, patience(15s))) << pub.log();
   std::this_thread::sleep_for(1s);
 
   Probe probe(domain, 0.0);
   ASSERT_TRUE(probe.ok());
-  ASSERT_TRUE(wait_until([&] { return probe.stats(1).have_description; }, 10s))
+  ASSERT_TRUE(wait_until([&] { return probe.stats(1).have_description; }, patience(10s)))
       << "the late joiner did not receive the transient-local description\n"
       << pub.log();
   const auto a = probe.stats(1);
@@ -233,17 +240,19 @@ TEST(DdsInterface, LateJoiningSubscriberReceivesTheAxisDescription) {
   EXPECT_EQ(probe.reader->matched_diagnostics_writers(), 1);
 
   pub.signal(SIGTERM);
-  EXPECT_EQ(pub.wait_exit(10s), 0) << pub.log();
+  EXPECT_EQ(pub.wait_exit(patience(10s)), 0) << pub.log();
 }
 
 TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
-  const int domain = 83;
+  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const int domain = ve::test::dds_domain();
+  ve::test::TempDir dir;
   const double requested_ms = 50.0;
   Probe probe(domain, requested_ms, profiles_file());
   ASSERT_TRUE(probe.ok());
   // The test hook stalls the loop of axis y alone, 1.5 s after the start, for 1 s.
   setenv("VE_TEST_STALL_AXIS", "y:1.5:1.0", 1);
-  ChildProcess pub(run_args(data("three_axes.yaml"), domain, 60, 10), "/tmp/ve_it_three_axes.log");
+  ChildProcess pub(run_args(data("three_axes.yaml"), domain, 60, 10), (dir.path / "run.log").string());
   unsetenv("VE_TEST_STALL_AXIS");
   ASSERT_TRUE(pub.started());
   ASSERT_TRUE(wait_until([&] { return probe.reader->matched_writers() > 0; }, patience(15s))) << pub.log();
@@ -333,7 +342,7 @@ TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
 }
 
 TEST(DdsInterface, ProfilesFileGivesTheDocumentedQos) {
-  const int domain = 84;
+  const int domain = ve::test::dds_domain();
   ve::app::DdsOptions o;
   o.domain = domain;
   o.profiles_file = profiles_file();

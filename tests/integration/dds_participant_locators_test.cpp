@@ -18,13 +18,12 @@
 
 #include "app/dds_io.hpp"
 #include "process.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
 namespace fdds = eprosima::fastdds::dds;
 using namespace std::chrono_literals;
-
-constexpr int kDomain = 79;
 
 struct Announced {
   bool seen = false;
@@ -59,16 +58,17 @@ class Observer : public fdds::DomainParticipantListener {
 };
 
 TEST(DdsParticipantLocators, ProductReceivesOverUdpOnlyAndAConsumerWithDefaultsOverBoth) {
+  const int domain = ve::test::dds_domain();
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   Observer observer;
   fdds::DomainParticipantQos oq = fdds::PARTICIPANT_QOS_DEFAULT;
   oq.name("locators-observer");
-  fdds::DomainParticipant* plain = factory->create_participant(kDomain, oq, &observer);
+  fdds::DomainParticipant* plain = factory->create_participant(domain, oq, &observer);
   ASSERT_NE(plain, nullptr);
 
   std::string error;
   ve::app::DdsOptions product;
-  product.domain = kDomain;
+  product.domain = domain;
   product.participant_name = "locators-product";
   auto product_ctx = ve::app::DdsContext::create(product, error);
   ASSERT_TRUE(product_ctx) << error;

@@ -49,6 +49,7 @@
 #include "process.hpp"
 #include "speed.hpp"
 #include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -59,9 +60,6 @@ using namespace std::chrono_literals;
 using ve::test::ChildProcess;
 using ve::test::wait_until;
 
-// Domains of these tests (the other integration tests use 71-92).
-constexpr int kReadDomain = 61;
-constexpr int kCalibrationDomain = 62;
 constexpr std::uint32_t kAxis = 7;
 
 using ve::test::TempDir;
@@ -75,7 +73,14 @@ std::string read(const fs::path& p) {
 
 void write(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
 
-bool have_openssl() { return std::system("command -v openssl >/dev/null 2>&1") == 0; }
+/// A shell command run to its end as a child of this test (ChildProcess: it ends with
+/// the test); its exit code, -1 if it did not end within two minutes.
+int shell(const std::string& command) {
+  ChildProcess sh({"/bin/sh", "-c", command}, "/dev/null");
+  return sh.wait_exit(120s);
+}
+
+bool have_openssl() { return shell("command -v openssl >/dev/null 2>&1") == 0; }
 
 std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
 
@@ -120,7 +125,7 @@ class Pki {
     const fs::path script = fs::path(VE_SOURCE_DIR) / "deploy" / "security" / "make-test-pki.sh";
     const fs::path log = dir_.path / "make-test-pki.log";
     const std::string cmd = "bash " + quoted(script) + " " + quoted(dir()) + " >" + quoted(log) + " 2>&1";
-    if (std::system(cmd.c_str()) != 0) {
+    if (shell(cmd) != 0) {
       error_ = "make-test-pki.sh failed:\n" + read(log);
       return;
     }
@@ -132,7 +137,7 @@ class Pki {
       return m;
     };
     const auto before = files();
-    if (std::system(cmd.c_str()) != 0 || !read(log).empty() || files() != before) {
+    if (shell(cmd) != 0 || !read(log).empty() || files() != before) {
       error_ = "make-test-pki.sh is not idempotent and quiet:\n" + read(log);
       return;
     }
@@ -163,7 +168,7 @@ class Pki {
         " -out governance.p7s" + ca + "; openssl smime -sign -text -md sha256 -in permissions.xml -out permissions.p7s" +
         ca;
     const std::string cmd2 = "(" + steps + ") >" + quoted(log) + " 2>&1";
-    if (permissions.find("<topic>ve/*</topic>") == std::string::npos || std::system(cmd2.c_str()) != 0) {
+    if (permissions.find("<topic>ve/*</topic>") == std::string::npos || shell(cmd2) != 0) {
       error_ = "cannot make the forged permissions:\n" + read(log);
       return;
     }
@@ -406,12 +411,13 @@ std::vector<std::string> run_args(const fs::path& machine, int domain) {
 }
 
 TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
+  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
   REQUIRE_PKI();
   const Pki& pki = Pki::get();
   TempDir dir;
   const fs::path encoder_machine = make_machine(dir.path, "encoder", pki.profiles("encoder"));
   const fs::path monitor_machine = make_machine(dir.path, "monitor", pki.profiles("monitor"));
-  const int domain = kReadDomain;
+  const int domain = ve::test::dds_domain();
 
   // The denied participants exist before the encoder: they have every chance to see the state.
   Peer open(domain, "unauthenticated", {});
@@ -479,7 +485,7 @@ TEST(DdsSecurity, OnlyThePermittedMonitorStartsACalibration) {
   const Pki& pki = Pki::get();
   TempDir dir;
   const fs::path encoder_machine = make_machine(dir.path, "encoder", pki.profiles("encoder"));
-  const int domain = kCalibrationDomain;
+  const int domain = ve::test::dds_domain();
   constexpr std::uint64_t kOpenRequest = 601, kForgedRequest = 602, kMonitorRequest = 603, kAbortRequest = 604;
 
   ChildProcess encoder(run_args(encoder_machine, domain), (dir.path / "run.log").string());

@@ -13,6 +13,7 @@
 
 #include "process.hpp"
 #include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -20,8 +21,6 @@ using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 using ve::test::ChildProcess;
 using ve::test::read_file;
-
-constexpr int kDomain = 85;  // its own: no other test uses it
 
 using ve::test::TempDir;
 
@@ -52,7 +51,7 @@ fs::path machine(const fs::path& dir, const std::string& profile) {
 }
 
 std::string run(const fs::path& machine_file, const fs::path& log, double seconds) {
-  ChildProcess p({VE_BINARY, "run", "--config", machine_file.string(), "--domain", std::to_string(kDomain),
+  ChildProcess p({VE_BINARY, "run", "--config", machine_file.string(), "--domain", std::to_string(ve::test::dds_domain()),
                   "--duration", std::to_string(seconds)},
                  log.string());
   EXPECT_TRUE(p.started());

@@ -21,6 +21,9 @@
 #include <vector>
 
 #include "process.hpp"
+#include "speed.hpp"
+#include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -28,7 +31,6 @@ using namespace std::chrono_literals;
 using ve::test::read_file;
 namespace fs = std::filesystem;
 
-constexpr int kDomain = 76;
 constexpr int kCapIpcLock = 14;
 constexpr int kCapSysNice = 23;
 
@@ -88,60 +90,19 @@ void task_sched(const std::string& task, int& policy, int& rt_priority) {
   }
 }
 
-/// `virtual-encoder` without the real-time permissions: CAP_SYS_NICE and CAP_IPC_LOCK
-/// dropped (bounding and ambient sets), RLIMIT_RTPRIO 0 and RLIMIT_MEMLOCK 64 KiB.
-class UnprivilegedChild {
- public:
-  UnprivilegedChild(const std::vector<std::string>& args, const std::string& log_path) : log_path_(log_path) {
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    pid_ = fork();
-    if (pid_ == 0) {
-      const int fd = open(log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      if (fd >= 0) {
-        dup2(fd, STDOUT_FILENO);
-        dup2(fd, STDERR_FILENO);
-      }
-      for (const int cap : {kCapSysNice, kCapIpcLock}) {
-        prctl(PR_CAP_AMBIENT, PR_CAP_AMBIENT_LOWER, cap, 0, 0);
-        prctl(PR_CAPBSET_DROP, cap, 0, 0, 0);
-      }
-      rlimit rt{0, 0};
-      setrlimit(RLIMIT_RTPRIO, &rt);
-      rlimit mem{64 * 1024, 64 * 1024};
-      setrlimit(RLIMIT_MEMLOCK, &mem);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
+/// In the child, before exec: `virtual-encoder` without the real-time permissions
+/// (CAP_SYS_NICE and CAP_IPC_LOCK dropped from the bounding and ambient sets,
+/// RLIMIT_RTPRIO 0 and RLIMIT_MEMLOCK 64 KiB).
+void drop_realtime_permissions() {
+  for (const int cap : {kCapSysNice, kCapIpcLock}) {
+    prctl(PR_CAP_AMBIENT, PR_CAP_AMBIENT_LOWER, cap, 0, 0);
+    prctl(PR_CAPBSET_DROP, cap, 0, 0, 0);
   }
-  ~UnprivilegedChild() {
-    if (pid_ > 0 && !exited_) {
-      kill(pid_, SIGKILL);
-      int st;
-      waitpid(pid_, &st, 0);
-    }
-  }
-  pid_t pid() const { return pid_; }
-  int wait_exit(std::chrono::milliseconds timeout) {
-    const auto end = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < end) {
-      int st = 0;
-      if (waitpid(pid_, &st, WNOHANG) == pid_) {
-        exited_ = true;
-        return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-      }
-      std::this_thread::sleep_for(20ms);
-    }
-    return -1;
-  }
-  std::string log() const { return read_file(log_path_); }
-
- private:
-  pid_t pid_ = -1;
-  bool exited_ = false;
-  std::string log_path_;
-};
+  rlimit rt{0, 0};
+  setrlimit(RLIMIT_RTPRIO, &rt);
+  rlimit mem{64 * 1024, 64 * 1024};
+  setrlimit(RLIMIT_MEMLOCK, &mem);
+}
 
 std::size_t count(const std::string& text, const std::string& what) {
   std::size_t n = 0;
@@ -149,10 +110,10 @@ std::size_t count(const std::string& text, const std::string& what) {
   return n;
 }
 
-/// A two-axis standstill machine whose file starts with `realtime`.
-std::string write_machine(const std::string& name, const std::string& realtime) {
+/// A two-axis standstill machine in `dir` whose file starts with `realtime`.
+std::string write_machine(const ve::test::TempDir& dir, const std::string& realtime) {
   const std::string motor = std::string(VE_SOURCE_DIR) + "/config/motors/sim-12mm.yaml";
-  const std::string path = "/tmp/ve_it_realtime_" + name + "_" + std::to_string(getpid()) + ".yaml";
+  const std::string path = (dir.path / "machine.yaml").string();
   std::ofstream(path) << "machine: realtime-test\n"
                       << realtime << "axes:\n"
                       << "  - name: x\n    motor: " << motor
@@ -165,7 +126,7 @@ std::string write_machine(const std::string& name, const std::string& realtime) 
 }
 
 std::vector<std::string> run_args(const std::string& machine) {
-  return {VE_BINARY, "run", "--config", machine, "--domain", std::to_string(kDomain), "--duration", "30"};
+  return {VE_BINARY, "run", "--config", machine, "--domain", std::to_string(ve::test::dds_domain()), "--duration", "30"};
 }
 
 TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
@@ -181,9 +142,10 @@ TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
     std::printf("[ note     ] only CPU %d is allowed here: pinned and unpinned threads look the same\n", last);
 
   // x pinned to the last allowed CPU at the lowest FIFO priority; y not named: not pinned.
+  ve::test::TempDir dir;
   const std::string machine = write_machine(
-      "pin", "realtime:\n  sample_thread_priority: 1\n  cpu_affinity: {x: [" + std::to_string(last) + "]}\n");
-  ve::test::ChildProcess run(run_args(machine), "/tmp/ve_it_realtime_pin.log");
+      dir, "realtime:\n  sample_thread_priority: 1\n  cpu_affinity: {x: [" + std::to_string(last) + "]}\n");
+  ve::test::ChildProcess run(run_args(machine), (dir.path / "run.log").string());
   ASSERT_TRUE(run.started());
   std::string x_task, y_task;
   ASSERT_TRUE(ve::test::wait_until(
@@ -194,18 +156,26 @@ TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
       },
       30s))
       << run.log();
-  std::this_thread::sleep_for(200ms);  // the thread applies its settings before its first sample
-  EXPECT_EQ(status_field(x_task + "/status", "Cpus_allowed_list"), std::to_string(last)) << run.log();
-  EXPECT_EQ(status_field(y_task + "/status", "Cpus_allowed_list"), inherited) << "an axis not named is not pinned";
   const std::string status_path = "/proc/" + std::to_string(run.pid()) + "/status";
-  EXPECT_EQ(status_field(status_path, "Cpus_allowed_list"), inherited) << "the process' other threads are not pinned";
-
-  // The priority: applied when the process may (CAP_SYS_NICE or RLIMIT_RTPRIO >= 1), else one warning.
-  int policy = -1, prio = -1;
-  task_sched(x_task, policy, prio);
   rlimit rt{};
   getrlimit(RLIMIT_RTPRIO, &rt);
   const bool may = has_capability(status_path, kCapSysNice) || rt.rlim_cur >= 1;
+  // The thread is named first and applies its settings right after, before its first
+  // sample: wait for them (not for a time) and then judge what is there.
+  int policy = -1, prio = -1;
+  ve::test::wait_until(
+      [&] {
+        task_sched(x_task, policy, prio);
+        return status_field(x_task + "/status", "Cpus_allowed_list") == std::to_string(last) &&
+               (!may || policy == SCHED_FIFO);
+      },
+      ve::test::patience(10s));
+  EXPECT_EQ(status_field(x_task + "/status", "Cpus_allowed_list"), std::to_string(last)) << run.log();
+  EXPECT_EQ(status_field(y_task + "/status", "Cpus_allowed_list"), inherited) << "an axis not named is not pinned";
+  EXPECT_EQ(status_field(status_path, "Cpus_allowed_list"), inherited) << "the process' other threads are not pinned";
+
+  // The priority: applied when the process may (CAP_SYS_NICE or RLIMIT_RTPRIO >= 1), else one warning.
+  task_sched(x_task, policy, prio);
   const std::string log = run.log();
   if (may) {
     EXPECT_EQ(policy, SCHED_FIFO) << log;
@@ -226,10 +196,10 @@ TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
 }
 
 TEST(Realtime, WithoutPermissionWarnsOncePerSettingAndPublishes) {
-  const std::string machine =
-      write_machine("noperm", "realtime:\n  sample_thread_priority: 50\n  lock_memory: true\n");
-  UnprivilegedChild run(run_args(machine), "/tmp/ve_it_realtime_noperm.log");
-  ASSERT_GT(run.pid(), 0);
+  ve::test::TempDir dir;
+  const std::string machine = write_machine(dir, "realtime:\n  sample_thread_priority: 50\n  lock_memory: true\n");
+  ve::test::ChildProcess run(run_args(machine), (dir.path / "run.log").string(), "", drop_realtime_permissions);
+  ASSERT_TRUE(run.started());
   std::string x_task;
   ASSERT_TRUE(ve::test::wait_until([&] { return !(x_task = find_task(run.pid(), "ve-x")).empty(); }, 30s)) << run.log();
   const std::string status_path = "/proc/" + std::to_string(run.pid()) + "/status";
@@ -240,7 +210,7 @@ TEST(Realtime, WithoutPermissionWarnsOncePerSettingAndPublishes) {
   EXPECT_EQ(policy, SCHED_OTHER);
   // It goes on: the status lines show samples (rate > 0) and it stops cleanly.
   ASSERT_TRUE(ve::test::wait_until([&] { return run.log().find(" x=") != std::string::npos; }, 30s)) << run.log();
-  kill(run.pid(), SIGTERM);
+  run.signal(SIGTERM);
   EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
   const std::string log = run.log();
   EXPECT_EQ(count(log, "realtime.sample_thread_priority: cannot run the sample threads at SCHED_FIFO priority 50"), 1u)
@@ -254,9 +224,10 @@ TEST(Realtime, WithoutPermissionWarnsOncePerSettingAndPublishes) {
 }
 
 TEST(Realtime, RequiredSettingWithoutPermissionFailsTheRun) {
-  const std::string machine = write_machine("required", "realtime:\n  sample_thread_priority: 50\n  required: true\n");
-  UnprivilegedChild run(run_args(machine), "/tmp/ve_it_realtime_required.log");
-  ASSERT_GT(run.pid(), 0);
+  ve::test::TempDir dir;
+  const std::string machine = write_machine(dir, "realtime:\n  sample_thread_priority: 50\n  required: true\n");
+  ve::test::ChildProcess run(run_args(machine), (dir.path / "run.log").string(), "", drop_realtime_permissions);
+  ASSERT_TRUE(run.started());
   const int rc = run.wait_exit(30s);
   const std::string log = run.log();
   if (rc == -1 || log.find("SCHED_FIFO 50") != std::string::npos)

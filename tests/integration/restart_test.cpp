@@ -24,12 +24,13 @@
 
 #include "app/dds_io.hpp"
 #include "process.hpp"
+#include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
 using namespace std::chrono_literals;
 
-constexpr int kDomain = 77;
 constexpr int kRestarts = 3;
 constexpr double kRateHz = 4000.0;  // sim-12mm.yaml sample_rate_hz
 
@@ -109,8 +110,10 @@ std::vector<MonitorRow> monitor_rows(const std::string& csv) {
 
 TEST(Restart, PublishingResumesAfterACrash) {
   const std::string machine = std::string(VE_SOURCE_DIR) + "/tests/integration/data/standstill.yaml";
+  const int domain = ve::test::dds_domain();
+  ve::test::TempDir dir;
   ve::app::DdsOptions o;
-  o.domain = kDomain;
+  o.domain = domain;
   o.participant_name = "restart-test-subscriber";
   o.receive_over_shm = true;
   std::string error;
@@ -122,8 +125,8 @@ TEST(Restart, PublishingResumesAfterACrash) {
   ASSERT_TRUE(reader->ok());
 
   // A second subscriber in its own process, up for the whole test.
-  ve::test::ChildProcess monitor({VE_BINARY, "monitor", "--domain", std::to_string(kDomain), "--csv", "--duration", "120"},
-                                 "/tmp/ve_it_restart_monitor.csv");
+  ve::test::ChildProcess monitor({VE_BINARY, "monitor", "--domain", std::to_string(domain), "--csv", "--duration", "120"},
+                                 (dir.path / "monitor.csv").string());
   ASSERT_TRUE(monitor.started());
 
   std::vector<double> exec_to_first_ms;
@@ -137,9 +140,9 @@ TEST(Restart, PublishingResumesAfterACrash) {
     }
     seen.start(realtime_ns(), std::chrono::steady_clock::now());
     run = std::make_unique<ve::test::ChildProcess>(
-        std::vector<std::string>{VE_BINARY, "run", "--config", machine, "--domain", std::to_string(kDomain), "--duration",
+        std::vector<std::string>{VE_BINARY, "run", "--config", machine, "--domain", std::to_string(domain), "--duration",
                                  "120"},
-        "/tmp/ve_it_restart_run" + std::to_string(i) + ".log");
+        (dir.path / ("run" + std::to_string(i) + ".log")).string());
     ASSERT_TRUE(run->started());
     ASSERT_TRUE(ve::test::wait_until([&] { return seen.current().seen; }, 30s))
         << "incarnation " << i << " never reached the subscriber\n"

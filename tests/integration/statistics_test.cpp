@@ -12,6 +12,8 @@
 #include <fastdds/dds/domain/DomainParticipantListener.hpp>
 
 #include "process.hpp"
+#include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -33,7 +35,8 @@ class Topics : public fdds::DomainParticipantListener {
 };
 
 TEST(DdsStatistics, MachineFileTurnsOnTheNamedStatisticsTopics) {
-  const int domain = 74;
+  const int domain = ve::test::dds_domain();
+  ve::test::TempDir dir;
   Topics topics;
   auto* factory = fdds::DomainParticipantFactory::get_instance();
   fdds::DomainParticipant* p =
@@ -42,7 +45,7 @@ TEST(DdsStatistics, MachineFileTurnsOnTheNamedStatisticsTopics) {
   ve::test::ChildProcess run({VE_BINARY, "run", "--config",
                               std::string(VE_SOURCE_DIR) + "/tests/integration/data/statistics.yaml", "--domain",
                               std::to_string(domain), "--duration", "20"},
-                             "/tmp/ve_it_statistics.log");
+                             (dir.path / "run.log").string());
   ASSERT_TRUE(run.started());
   EXPECT_TRUE(ve::test::wait_until([&] { return topics.has("ve/encoder_state"); }, 15s)) << run.log();
   EXPECT_TRUE(ve::test::wait_until([&] { return topics.has("_fastdds_statistics_publication_throughput"); }, 15s))

@@ -7,10 +7,13 @@
 # virtual-encoder processes talking over a real Fast DDS stack, the command line, the
 # systemd notify/watchdog test) and the install-tree test. The child processes the
 # integration tests start are the sanitized binary too.
-# Under ThreadSanitizer the product and the tests run 5 to 15 times slower: the
-# integration tests that check real-time figures of the 4 kHz stream (rates, losses,
-# pauses, promptness) still run every step and check every behaviour there, waiting
-# longer, and judge those figures only at real speed (tests/integration/speed.hpp).
+# Under ThreadSanitizer the product and the tests run 5 to 15 times slower, under
+# AddressSanitizer about 2 times: the integration tests that check real-time figures of
+# the 4 kHz stream (rates, losses, pauses, promptness) still run every step and check
+# every behaviour there, waiting longer, and judge those figures only at real speed, in
+# the plain build (tests/integration/speed.hpp).
+# Each test takes its DDS domains from the host-wide pool (docs/testing.md), so this can
+# run while the plain suite, the other sanitizer or another checkout's suite runs.
 # In the TSan tree every executable also carries tests/sanitizers/tsan_clock_interpose.cpp
 # (CMakeLists.txt): libtsan does not intercept pthread_mutex_clocklock, with which Fast DDS
 # takes its timed mutexes, and would report bogus races inside Fast DDS without it.

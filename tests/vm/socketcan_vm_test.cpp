@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <mutex>
 #include <sstream>
@@ -31,6 +32,9 @@
 #include "sim/sim_source.hpp"
 #include "socketcan/can_layout_file.hpp"
 #include "socketcan/socketcan_source.hpp"
+#include "../integration/process.hpp"
+#include "../integration/temp_dir.hpp"
+#include "../integration/test_domain.hpp"
 
 extern char** environ;
 
@@ -102,36 +106,46 @@ constexpr double kLsb = 5.0 / 4095.0;
 TEST(SocketCanVm, GuestSuite) {
   if (in_vm()) GTEST_SKIP() << "this is the guest";
   const std::string cache = VE_VM_CACHE;
-  const std::string prep = "sh " + kSrc + "/tests/vm/prepare.sh " + cache + " > " + cache + ".prepare.log 2>&1";
-  std::system(("mkdir -p " + cache).c_str());
-  const int p = sh(prep);
-  if (p == 77) GTEST_SKIP() << "SocketCAN VM unavailable: " << slurp(cache + ".prepare.log");
-  ASSERT_EQ(p, 0) << slurp(cache + ".prepare.log");
+  std::filesystem::create_directories(cache);
+  // What this run writes is its own (two test runs of one build tree may boot a VM
+  // each at the same time): a fresh directory, visible at the same path in the guest.
+  const ve::test::TempDir run_dir("ve_vm_guest");
+  ASSERT_FALSE(run_dir.path.empty());
+  const std::string out = run_dir.path.string();
+  // The VM and what prepares it run as children of this test (integration/process.hpp):
+  // they end with it, also when it fails or is killed. The cache is prepared by one
+  // run at a time (flock).
+  ve::test::ChildProcess prepare({"/usr/bin/flock", cache + ".lock", "/bin/sh", kSrc + "/tests/vm/prepare.sh", cache},
+                                 out + "/prepare.log");
+  const int p = prepare.wait_exit(std::chrono::seconds(280));
+  if (p == 77) GTEST_SKIP() << "SocketCAN VM unavailable: " << slurp(out + "/prepare.log");
+  ASSERT_EQ(p, 0) << slurp(out + "/prepare.log");
 
   char exe[4096] = {};
   ASSERT_GT(readlink("/proc/self/exe", exe, sizeof exe - 1), 0);
-  const std::string out = cache + "/guest";
-  std::system(("rm -rf " + out + " && mkdir -p " + out).c_str());
   const std::string script = out + "/guest.sh";
   {
     std::ofstream s(script);
     s << "#!/bin/sh\n"
       << "export VE_IN_VM=1 PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/tmp\n"
+      // The guest's DDS domains: held by this process (the guest's network is its own
+      // loopback, but no test uses a domain it has not reserved).
+      << "export VE_TEST_DDS_DOMAINS_HELD=" << ve::test::dds_domain(0) << "," << ve::test::dds_domain(1) << "\n"
       << "cd " << out << "\n"
       << exe << " --gtest_filter='SocketCanGuest.*' --gtest_color=no > " << out << "/guest.log 2>&1\n"
       << "echo $? > " << out << "/guest.rc\n"
       << "sync\n";
   }
   const auto t0 = std::chrono::steady_clock::now();
-  const int r = sh("sh " + kSrc + "/tests/vm/run_in_vm.sh " + cache + " " + script + " 200 > " + out +
-                   "/run.log 2>&1");
+  ve::test::ChildProcess vm({"/bin/sh", kSrc + "/tests/vm/run_in_vm.sh", cache, script, "200"}, out + "/run.log");
+  const int r = vm.wait_exit(std::chrono::seconds(230));
   const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (r == 77) GTEST_SKIP() << slurp(out + "/run.log");
   const std::string log = slurp(out + "/guest.log");
   std::printf("---- guest (VM %.1f s) ----\n%s---- end guest ----\n", secs, log.c_str());
-  ASSERT_EQ(r, 0) << slurp(out + "/run.log") << "\nconsole:\n" << slurp(cache + "/console.log");
+  ASSERT_EQ(r, 0) << slurp(out + "/run.log") << "\nconsole:\n" << slurp(out + "/console.log");
   const std::string rc = slurp(out + "/guest.rc");
-  ASSERT_FALSE(rc.empty()) << "the guest wrote no result; console:\n" << slurp(cache + "/console.log");
+  ASSERT_FALSE(rc.empty()) << "the guest wrote no result; console:\n" << slurp(out + "/console.log");
   EXPECT_EQ(std::atoi(rc.c_str()), 0) << "guest tests failed (log above)";
   EXPECT_NE(log.find("[  PASSED  ]"), std::string::npos);
 }
@@ -520,8 +534,8 @@ TEST(SocketCanGuest, EmulatorToDdsChainAccuracy) {
     std::ofstream(out) << yaml;
     return out;
   };
-  for (const Case c : {Case{"config/machines/can-classic.yaml", "config/can/classic-4hall.yaml", 91},
-                       Case{"config/machines/can-fd.yaml", "config/can/fd-4hall-x8.yaml", 92}}) {
+  for (const Case c : {Case{"config/machines/can-classic.yaml", "config/can/classic-4hall.yaml", ve::test::dds_domain(0)},
+                       Case{"config/machines/can-fd.yaml", "config/can/fd-4hall-x8.yaml", ve::test::dds_domain(1)}}) {
     app::DdsOptions o;
     o.domain = c.domain;
     std::string error;
