@@ -214,13 +214,13 @@ struct Inputs {
     short_log = dir.path / "short.csv";
     long_log = dir.path / "long.csv";
     const Outcome a = run_to_end({"record", "--out", short_log.string(), "--duration", "0.25", "--fast"}, dir.path);
-    const Outcome b = run_to_end({"record", "--out", long_log.string(), "--duration", "120", "--fast"}, dir.path);
+    const Outcome b = run_to_end({"record", "--out", long_log.string(), "--duration", "60", "--fast"}, dir.path);
     if (a.code != 0 || b.code != 0) ADD_FAILURE() << describe(a) << describe(b);
   }
 };
 Inputs& inputs() {
-  static auto* in = new Inputs;  // kept to the end of the process (its directory is removed then)
-  return *in;
+  static Inputs in;  // made on first use, removed at the end of the process
+  return in;
 }
 
 /// Replaces {dir}, {log}, {long} and {file} in the arguments; {file} is a regular file
@@ -396,6 +396,10 @@ const ValueCase kValueCases[] = {
   {"EvaluateLogIsDevZero", {"evaluate", "--log", "/dev/zero"}, 2, {"/dev/zero", "device"}},
   {"EvaluateLogIsADirectory", {"evaluate", "--log", "{dir}"}, 2, {"{dir}", "directory"}},
   {"EvaluateLogUnderAFile", {"evaluate", "--log", "{file}/x.csv"}, 2, {"{file}/x.csv", "Not a directory"}},
+  {"EvaluateConfigIsDevZero", {"evaluate", "--config", "/dev/zero", "--log", "{log}"}, 2, {"/dev/zero"}},
+  {"RecordConfigUnderAFile", {"record", "--config", "{file}/m.yaml", "--out", "{dir}/r.csv"}, 2, {"{file}/m.yaml", "Not a directory"}},
+  {"EvaluateCalibrationIsDevZero", {"evaluate", "--log", "{log}", "--calibration", "/dev/zero"}, 2, {"/dev/zero"}},
+  {"EvaluateCalibrationUnderAFile", {"evaluate", "--log", "{log}", "--calibration", "{file}/x.cal.yaml"}, 2, {"{file}/x.cal.yaml", "Not a directory"}},
   {"CalibrateLogIsDevZero", {"calibrate", "--log", "/dev/zero", "--out", "{dir}/c.cal.yaml"}, 2, {"/dev/zero", "device"}},
   {"CalibrateLogIsADirectory", {"calibrate", "--log", "{dir}", "--out", "{dir}/c.cal.yaml"}, 2, {"{dir}", "directory"}},
   // Readable but without the motion a calibration needs: the job fails (1), naming the log.
