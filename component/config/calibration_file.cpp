@@ -147,7 +147,9 @@ void read_table(Map t, core::HallTable& table, int hall_count, const core::Motor
   check_table(t, sensors, table, motor, step_ok, start_ok, points_ok);
 }
 
-void read_calibration(Map root, const core::MotorConfig& expected, core::Calibration& cal, std::size_t first_error,
+/// True when the file's table and sensor model hash to its id: the program wrote it
+/// as it is, so what is wrong with it makes it unusable, not damaged.
+bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibration& cal, std::size_t first_error,
                       const std::vector<ConfigError>& errors) {
   core::CalibrationInfo& info = cal.info;
   std::string format;
@@ -156,7 +158,7 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     f.error(std::string(kNotCalibration) + "format is '" + format + "', expected '" + kCalibrationFormat + "'");
   if (errors.size() != first_error) {
     root.discard();
-    return;
+    return false;
   }
   int version = 0;
   const Value ver = root.required("version");
@@ -165,7 +167,7 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
               std::to_string(kCalibrationVersion));
   if (errors.size() != first_error) {
     root.discard();
-    return;
+    return false;
   }
 
   const Value motor = root.required("motor");
@@ -206,7 +208,9 @@ void read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     if (sum != info.id)
       id.error(std::string(kCorrupt) + "the calibration's checksum is " + sum + " but id is " + info.id +
                " (the file was damaged or edited)");
+    return sum == info.id;
   }
+  return false;
 }
 
 // ---- writing -------------------------------------------------------------------
@@ -290,6 +294,7 @@ void stamp_calibration(core::Calibration& cal) {
 
 CalibrationLoad load_calibration_file(const std::string& path, const core::MotorConfig& expected) {
   CalibrationLoad r;
+  bool checksum_ok = false;
   std::string text, why;
   if (!schema::read_text_file(path, text, why, schema::kMaxCalibrationFileBytes)) {
     r.errors.push_back({path, 0, 0, "", kUnreadable + why});
@@ -297,10 +302,15 @@ CalibrationLoad load_calibration_file(const std::string& path, const core::Motor
   }
   {
     schema::Document doc(path, r.errors);
-    if (doc.parse(text)) read_calibration(doc.root(), expected, r.calibration, 0, r.errors);
+    if (doc.parse(text)) checksum_ok = read_calibration(doc.root(), expected, r.calibration, 0, r.errors);
   }
   // Generic problems (bad syntax, missing or mistyped keys) in a file this
-  // program wrote mean it was damaged.
+  // program wrote mean it was damaged; a value out of range in a file whose
+  // checksum holds was written so: the calibration is unusable for this motor.
+  for (auto& e : r.errors)
+    if (checksum_ok && e.message.find(" out of range ") != std::string::npos &&
+        !starts_with(e.message, kUnusable))
+      e.message = kUnusable + e.message;
   for (auto& e : r.errors)
     if (!starts_with(e.message, kCorrupt) && !starts_with(e.message, kOtherMotor) &&
         !starts_with(e.message, kLayout) && !starts_with(e.message, kVersion) &&

@@ -1261,11 +1261,12 @@ class MachineLoader {
 
   /// Cross-check against the motor's travel; reports at the value, or at the
   /// enclosing mapping when the value is a default.
-  static void within_travel(Map& m, std::string_view key, double x, double travel) {
-    if (travel <= 0.0 || (x >= 0.0 && x <= travel)) return;
+  static bool within_travel(Map& m, std::string_view key, double x, double travel) {
+    if (travel <= 0.0 || (x >= 0.0 && x <= travel)) return true;
     const Value v = m.value(key);
     v.error(std::string(v.present() ? "" : "(default) ") + schema::out_of_range(x, 0.0, travel, "m") +
             ": outside the motor's travel");
+    return false;
   }
 
   void read_driver(Map d, DriverConfig& drv, double travel) {
@@ -1371,7 +1372,7 @@ class MachineLoader {
     c.layout_file = files_.stored(resolved);
     std::string text, why;
     if (!files_.read(resolved, text, why)) {
-      layout.error("cannot read layout file: " + why);
+      layout.error("cannot read layout file " + files_.display(resolved) + ": " + why);
       return;
     }
     const std::size_t before = errors_.size();
@@ -1462,10 +1463,11 @@ class MachineLoader {
     p.get("dwell_s", c.dwell_s, range(0.0, 3600.0, "s"));
     const bool min_ok = optional<double>(p, "min_m", c.min_m);
     const bool max_ok = optional<double>(p, "max_m", c.max_m);
-    if (start_ok) within_travel(p, "start_m", c.start_m, travel);
-    if (min_ok) within_travel(p, "min_m", c.min_m, travel);
-    if (max_ok) within_travel(p, "max_m", c.max_m, travel);
-    if (!(min_ok && max_ok && start_ok)) return;
+    // One error per problem: a position already outside the travel is not compared again.
+    const bool start_in = start_ok && within_travel(p, "start_m", c.start_m, travel);
+    const bool min_in = min_ok && within_travel(p, "min_m", c.min_m, travel);
+    const bool max_in = max_ok && within_travel(p, "max_m", c.max_m, travel);
+    if (!(min_in && max_in && start_in)) return;
     if (!(c.min_m < c.max_m)) {
       p.value(p.has("max_m") ? "max_m" : "min_m")
           .error("min_m (" + schema::compact_number(c.min_m) + ") must be less than max_m (" +
