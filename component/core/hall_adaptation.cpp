@@ -28,6 +28,28 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   p0_dd_ = f.hall_offset_initial_std_v * f.hall_offset_initial_std_v;
   p_gg_.fill(p0_gg_);
   p_dd_.fill(p0_dd_);
+  q_common_ = f.hall_common_gain_random_walk_per_sqrt_s * f.hall_common_gain_random_walk_per_sqrt_s * ts_s;
+  p0_common_ = f.hall_common_gain_initial_std * f.hall_common_gain_initial_std;
+  p_common_ = p0_common_;
+  model_var_common_ = f.hall_common_gain_model_std * f.hall_common_gain_model_std;
+  model_var_v2_ = f.hall_adaptation_model_std_v * f.hall_adaptation_model_std_v;
+}
+
+void HallAdaptation::update_common(double relative_change, double variance) {
+  if (!enabled_ || !std::isfinite(relative_change) || !(variance > 0.0)) return;
+  // The fix combined its sensors (information I) with the prior p_common_. Their
+  // model is not exact (the table's own residual repeats along the travel), so
+  // one fix says no more than model_var_common_: the update with the sensors'
+  // estimate known to 1 / I + m instead of 1 / I. In closed form (stable for any I):
+  // the change is relative_change (1 + p I) / (1 + p I + m I), the variance
+  // p (1 + m I) / (1 + p I + m I).
+  const double p = p_common_, m = model_var_common_;
+  const double info = std::max(0.0, 1.0 / variance - 1.0 / p);
+  const double den = 1.0 + p * info + m * info;
+  const double change = relative_change * (1.0 + p * info) / den;
+  const double g = 1.0 + common_gain_;
+  common_gain_ = std::clamp(g * (1.0 + change) - 1.0, -gain_limit_, gain_limit_);
+  p_common_ = std::max(p * (1.0 + m * info) / den, 1e-14);
 }
 
 void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSample& out) const {
@@ -37,8 +59,9 @@ void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSampl
     const double y = in.hall_v[static_cast<std::size_t>(i)];
     if (!(y > lo_v_ && y < hi_v_)) continue;  // a rail reading stays a rail reading
     const auto k = static_cast<std::size_t>(i);
-    // y = c + m + delta + (1 + gamma) (T - m)  =>  T = m + (y - c - m - delta) / (1 + gamma)
-    out.hall_v[k] = common_mode_v + mid_v_ + (y - common_mode_v - mid_v_ - delta_[k]) / (1.0 + gamma_[k]);
+    // y = c + m + delta + (1 + G) (1 + gamma) (T - m)  =>  T = m + (y - c - m - delta) / ((1 + G) (1 + gamma))
+    out.hall_v[k] =
+        common_mode_v + mid_v_ + (y - common_mode_v - mid_v_ - delta_[k]) / ((1.0 + common_gain_) * (1.0 + gamma_[k]));
   }
 }
 
@@ -47,7 +70,7 @@ double HallAdaptation::residual(const RawSample& raw, const HallTable& table, in
   const auto k = static_cast<std::size_t>(i);
   double t, slope;
   table.evaluate(i, x_m, t, slope);
-  const double u = t - mid_v_;
+  const double u = (1.0 + common_gain_) * (t - mid_v_);
   const double predicted = common_mode_v + mid_v_ + delta_[k] + (1.0 + gamma_[k]) * u;
   std_v = std::sqrt(noise_var_v2_ + reading_variance(i, t));
   return raw.hall_v[k] - predicted;
@@ -57,6 +80,7 @@ double HallAdaptation::residual(const RawSample& raw, const HallTable& table, in
 void HallAdaptation::update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
                             std::uint32_t mask, std::uint32_t learn_only_mask) {
   if (!enabled_) return;
+  p_common_ = std::min(p_common_ + q_common_, p0_common_);
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
     // Random walk: the parameters may have moved since the last sample; unseen for
@@ -96,8 +120,8 @@ void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, dou
     // sensor's curve: a changed gain moves the reading off the rail there, which
     // the model cannot express. Such places teach nothing.
     if (!(t > lo_v_ + rail_guard_v_ && t < hi_v_ - rail_guard_v_)) continue;
-    u[k] = t - mid_v_;
-    sl[k] = slope;
+    u[k] = (1.0 + common_gain_) * (t - mid_v_);
+    sl[k] = (1.0 + common_gain_) * slope;
     r[k] = y - (common_mode_v + mid_v_ + delta_[k] + (1.0 + gamma_[k]) * u[k]);
     usable |= 1u << i;
     if (learn_only_mask >> i & 1u) continue;  // learns, but says nothing about the others
@@ -122,7 +146,7 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
     // Far from the prediction the residual is no longer linear in the shift.
     if (std::abs(shift_m) > max_shift_m_) continue;
     const double res = r[k] - sl[k] * shift_m;
-    const double rv = noise_var_v2_ * (1.0 + sl[k] * sl[k] / others_ss);
+    const double rv = noise_var_v2_ * (1.0 + sl[k] * sl[k] / others_ss) + model_var_v2_;
     // Innovation variance with H = [u, 1].
     const double ph_g = p_gg_[k] * u[k] + p_gd_[k];
     const double ph_d = p_gd_[k] * u[k] + p_dd_[k];

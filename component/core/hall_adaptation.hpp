@@ -2,12 +2,19 @@
 // each sensor's gain about its zero-field output and its offset, tracked while
 // running from the redundancy of the array, without recalibration.
 //
-// Model: a sensor reads y_i = c + m_i + delta_i + (1 + gamma_i) (T_i(x) - m_i),
+// Model: a sensor reads y_i = c + m_i + delta_i + (1 + G) (1 + gamma_i) (T_i(x) - m_i),
 // where T_i is its calibrated table, m_i its zero-field output (the motor file's
 // offset_v; an error in it is taken up by delta_i), c the coil field's common
-// mode, gamma_i the relative change of its gain times the magnets' field (the
-// remanence falls by about 0.12 %/K, a Hall's sensitivity by about 0.1 %/K) and
-// delta_i the change of its offset (a few mV over 10 K).
+// mode, G the change of the gain every sensor shares (the magnets' field: the
+// remanence falls by about 0.12 %/K; and the sensors' common sensitivity, about
+// 0.1 %/K), gamma_i what is left of sensor i's own gain change, and delta_i the
+// change of its offset (a few mV over 10 K).
+//
+// The common gain G is the larger part (about 2 % over 10 K, against a spread of a
+// few tenths of a percent between sensors) and moves every reading the same way,
+// which a position error does not: every Hall fix estimates it with the position
+// (HallArray::solve, from its prior common_gain_variance()), and update_common()
+// takes that estimate in. Until it is known, the fix's variance carries it.
 //
 // Estimation: per sensor a two-state Kalman filter (gamma_i, delta_i as random
 // walks) on the residual of its reading against the table at the filter's
@@ -41,6 +48,11 @@ class HallAdaptation {
   /// carry no position, are left as read).
   void correct(const RawSample& in, double common_mode_v, RawSample& out) const;
 
+  /// Takes in a Hall fix's estimate of the common gain: `relative_change` of the
+  /// gain the correction assumed, known to variance `variance` (the fix's
+  /// posterior, which already holds common_gain_variance() as its prior).
+  void update_common(double relative_change, double variance);
+
   /// Learns from one sample: `x_m` the position the Halls saw (the filter's
   /// prediction at the Halls' instant); only sensors in `mask` (not this sample's
   /// outlier) and out of saturation take part. What a position error would explain
@@ -65,7 +77,15 @@ class HallAdaptation {
     const double u = table_v - mid_v_;
     return std::max(0.0, u * u * p_gg_[k] + 2.0 * u * p_gd_[k] + p_dd_[k]);
   }
+  /// Sensor i's own gain change (on top of the common one), and its total change.
   double gain(int i) const { return gamma_[static_cast<std::size_t>(i)]; }
+  double total_gain(int i) const { return (1.0 + common_gain_) * (1.0 + gain(i)) - 1.0; }
+  /// The gain every sensor shares, relative to the calibration, and its variance
+  /// (0 when adaptation is off: the fix then takes the calibration's gain as exact).
+  double common_gain() const { return common_gain_; }
+  double common_gain_variance() const { return enabled_ ? p_common_ : 0.0; }
+  /// The zero-field output the gains act about [V].
+  double mid_v() const { return mid_v_; }
   double offset_v(int i) const { return delta_[static_cast<std::size_t>(i)]; }
   /// The sensor's gain or offset ran into its bound: more change than slow drift explains.
   bool beyond_limits(int i) const { return at_limit_[static_cast<std::size_t>(i)]; }
@@ -88,6 +108,10 @@ class HallAdaptation {
   double lo_v_, hi_v_;
   double noise_var_v2_;
   double q_gain_, q_offset_;          ///< per-sample random-walk variances
+  double q_common_, p0_common_;       ///< the common gain's random walk and start-up variance
+  double model_var_common_;           ///< the least variance one fix's common gain can have
+  double model_var_v2_;               ///< the least variance one sample's residual has [V^2]
+  double common_gain_ = 0.0, p_common_ = 0.0;
   double p0_gg_, p0_dd_;              ///< start-up variances, where the random walk stops
   double gain_limit_, offset_limit_v_;
   double reopen_threshold_;

@@ -38,24 +38,48 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   for (int i = 0; i < sensors_; ++i)
     if (!(sample.hall_valid_mask >> i & 1u)) fix.missing_mask |= 1u << i;
 
-  // Gauss-Newton on sum_i w (y_i - T_i(x))^2 over the sensors out of saturation.
-  // The step is limited so that a poor guess cannot jump into another period.
+  // Gauss-Newton on sum_i w (y_i - (1 + e) T_i(x) + e m)^2 + e^2 / pc over the
+  // sensors out of saturation, where e is the common gain not yet learnt (prior
+  // variance pc; without one, e stays 0 and this is a search on x alone). The
+  // step is limited so that a poor guess cannot jump into another period.
+  const double pc = adaptation ? adaptation->common_gain_variance() : 0.0;
+  const bool with_gain = pc > 0.0;
+  const double info_c = with_gain ? 1.0 / pc : 0.0;
+  const double mid = adaptation ? adaptation->mid_v() : 0.0;
   const double max_step = pitch_m_ / 8.0;
-  double x = guess_m;
-  for (int iter = 0; iter < 6; ++iter) {
-    double h = 0.0, g = 0.0;
+  double x = guess_m, e = 0.0;
+  for (int iter = 0, iters = with_gain ? 8 : 6; iter < iters; ++iter) {
+    double hxx = 0.0, hxe = 0.0, hee = info_c, gx = 0.0, ge = -e * info_c;
     for (int i = 0; i < sensors_; ++i) {
       if (!usable(sample, i, use_mask)) continue;
       double t, slope;
       table_.evaluate(i, x, t, slope);
       const double w = weight(i, t);
-      h += w * slope * slope;
-      g += w * slope * (sample.hall_v[i] - common_mode_v - t);
+      const double u = t - mid;
+      const double r = sample.hall_v[i] - common_mode_v - t - e * u;
+      const double jx = (1.0 + e) * slope;
+      hxx += w * jx * jx;
+      gx += w * jx * r;
+      if (with_gain) {
+        hxe += w * jx * u;
+        hee += w * u * u;
+        ge += w * u * r;
+      }
     }
-    if (h <= 0.0) return fix;
-    const double dx = std::clamp(g / h, -max_step, max_step);
+    if (hxx <= 0.0) return fix;
+    double dx, de = 0.0;
+    if (with_gain) {
+      const double det = hxx * hee - hxe * hxe;
+      if (!(det > 0.0)) return fix;
+      dx = (hee * gx - hxe * ge) / det;
+      de = (hxx * ge - hxe * gx) / det;
+    } else {
+      dx = gx / hxx;
+    }
+    dx = std::clamp(dx, -max_step, max_step);
     x += dx;
-    if (std::abs(dx) < 1e-10) break;
+    e = std::clamp(e + de, -0.5, 0.5);
+    if (std::abs(dx) < 1e-10 && std::abs(de) < 1e-9) break;
   }
   if (x < table_.start_m || x > table_.end_m()) {
     fix.out_of_table = true;
@@ -64,18 +88,22 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
 
   // Residuals at the solution. Saturated sensors must agree too: a sensor reading
   // a rail whose table value is far from that rail means we are in the wrong place.
-  double chi2 = 0.0;
+  double chi2 = with_gain ? e * e * info_c : 0.0;
   int used = 0;
-  double h = 0.0;
+  double hxx = 0.0, hxe = 0.0, hee = info_c;
   for (int i = 0; i < sensors_; ++i) {
     if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
     double t, slope;
     table_.evaluate(i, x, t, slope);
-    const double r = sample.hall_v[i] - common_mode_v - t;
+    const double u = t - mid;
+    const double r = sample.hall_v[i] - common_mode_v - t - e * u;
     if (usable(sample, i, use_mask)) {
       const double w = weight(i, t);
+      const double jx = (1.0 + e) * slope;
       chi2 += r * r * w;
-      h += w * slope * slope;
+      hxx += w * jx * jx;
+      hxe += w * jx * u;
+      hee += w * u * u;
       ++used;
     } else if (std::abs(r) > 0.25) {
       fix.conflict_mask |= 1u << i;  // inconsistent with a saturated sensor
@@ -84,14 +112,22 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   fix.position_m = x;
   fix.chi2 = chi2;
   fix.sensors_used = used;
-  if (used == 0 || h <= 0.0 || fix.conflict_mask != 0) return fix;
+  if (used == 0 || hxx <= 0.0 || fix.conflict_mask != 0) return fix;
+  double var_x = 1.0 / hxx;
+  if (with_gain) {
+    const double det = hxx * hee - hxe * hxe;
+    if (!(det > 0.0)) return fix;
+    var_x = hee / det;
+    fix.common_gain = e;
+    fix.common_gain_variance = hxx / det;
+  }
   fix.ok = true;
-  fix.variance_m2 = 1.0 / h + floor_m2_;
+  fix.variance_m2 = var_x + floor_m2_;
   return fix;
 }
 
 HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v,
-                           std::uint32_t use_mask) const {
+                           std::uint32_t use_mask, const HallAdaptation* adaptation) const {
   lo_m = std::max(lo_m, table_.start_m);
   hi_m = std::min(hi_m, table_.end_m());
   const int k0 = static_cast<int>(std::ceil((lo_m - table_.start_m) / table_.step_m));
@@ -113,7 +149,7 @@ HallFix HallArray::acquire(const RawSample& sample, double lo_m, double hi_m, do
     }
   }
   if (best_k < 0) return HallFix{};
-  return solve(sample, table_.start_m + best_k * table_.step_m, common_mode_v, use_mask);
+  return solve(sample, table_.start_m + best_k * table_.step_m, common_mode_v, use_mask, adaptation);
 }
 
 }  // namespace ve::core

@@ -24,6 +24,11 @@ struct HallFix {
   /// Saturated sensors whose table value at the solution is far from the rail they
   /// read: the solution (or that sensor) is wrong. A fix with conflicts is not ok.
   std::uint32_t conflict_mask = 0;
+  /// With an adaptation whose common gain is uncertain: the fix's estimate of the
+  /// gain every sensor shares, relative to the one the readings were corrected
+  /// with, and its posterior variance (0, 0 without).
+  double common_gain = 0.0;
+  double common_gain_variance = 0.0;
 };
 
 class HallAdaptation;
@@ -37,14 +42,17 @@ class HallArray {
   /// `common_mode_v` is removed from every reading first (the coil field's offset).
   /// Only sensors in `use_mask` take part (the others are ignored entirely).
   /// With `adaptation`, each sensor's reading also carries the uncertainty of its
-  /// adapted gain and offset: it weighs less in the fix and in its chi-square.
+  /// adapted gain and offset: it weighs less in the fix and in its chi-square; and
+  /// while the gain all sensors share is uncertain, it is estimated with the
+  /// position (a common change of gain is not a position error: the fix's variance
+  /// holds what the sensors cannot tell apart).
   HallFix solve(const RawSample& sample, double guess_m, double common_mode_v = 0.0,
                 std::uint32_t use_mask = 0xFFu, const HallAdaptation* adaptation = nullptr) const;
 
   /// Searches [lo_m, hi_m] for the best-matching position (start-up, re-acquisition),
   /// then refines it. Cost grows with the window; use at most a few periods.
   HallFix acquire(const RawSample& sample, double lo_m, double hi_m, double common_mode_v = 0.0,
-                  std::uint32_t use_mask = 0xFFu) const;
+                  std::uint32_t use_mask = 0xFFu, const HallAdaptation* adaptation = nullptr) const;
 
   const HallTable& table() const { return table_; }
   double pitch_m() const { return pitch_m_; }

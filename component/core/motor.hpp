@@ -153,6 +153,19 @@ struct FilterConfig {
   /// than temperature explains and is judged by the health check instead.
   double hall_gain_limit = 0.1;
   double hall_offset_limit_v = 0.1;
+  /// The gain all sensors share (the magnets' field, which falls by about 0.12 %/K,
+  /// and the sensors' common sensitivity): its uncertainty at start-up (a motor
+  /// 20 K away from its calibration temperature is about 4 % off), and how fast it
+  /// may drift [1/sqrt(s)]. It is estimated with the position in every Hall fix.
+  double hall_common_gain_initial_std = 0.001;
+  double hall_common_gain_random_walk_per_sqrt_s = 3e-4;
+  /// What one sample can tell of a sensor's own gain and offset at best: the
+  /// table's own error and the prediction's error repeat from sample to sample,
+  /// so a sample's residual is trusted no more than this [V] (keeps the sensors'
+  /// parameters, learnt from each other, from chasing each other).
+  double hall_adaptation_model_std_v = 3e-3;
+  /// What one fix can tell of it at best: the table's own error repeats along the travel.
+  double hall_common_gain_model_std = 1e-4;
 
   // --- steady motion ---
   /// While the acceleration holds still, the filter runs a calm model: the jerk

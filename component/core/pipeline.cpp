@@ -169,7 +169,7 @@ bool AxisPipeline::acquire(const RawSample& sample) {
     homed = false;
   }
   adapt_.correct(sample, 0.0, corrected_);
-  const HallFix fix = hall_.acquire(corrected_, lo, hi, 0.0, all_halls_mask_ & ~faulty_mask_);
+  const HallFix fix = hall_.acquire(corrected_, lo, hi, 0.0, all_halls_mask_ & ~faulty_mask_, &adapt_);
   if (!fix.ok) return false;
   kf_.reset(fix.position_m, fix.variance_m2, accel_reading(sample), accel_usable(sample));
   homed_ = homed;
@@ -318,6 +318,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       const double wide_gate = gate * std::sqrt(1.0 + disagreement_var_m2_ / fix.variance_m2);
       out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix_var, wide_gate, applied);
       if (learn) {
+        // The gain every sensor shares, as this fix saw it; then each sensor's own.
+        adapt_.update_common(fix.common_gain, fix.common_gain_variance);
         // An outlier nobody can be blamed for (a drift) is exactly what must learn.
         adapt_.update(sample, hall_.table(), guess, common_mode, use & ~(ambiguous ? 0u : outlier), faulty_mask_);
         // ... and see whether a faulty sensor agrees again.
