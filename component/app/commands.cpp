@@ -337,9 +337,16 @@ bool stall_hook(const RunOptions& options, std::string& axis, double& after_s, d
     spdlog::warn("VE_TEST_STALL_AXIS='{}' ignored: expected NAME:AFTER_S:FOR_S", text);
     return false;
   }
+  auto seconds = [](const std::string& t, double max, double& out) {
+    char* end = nullptr;
+    out = std::strtod(t.c_str(), &end);
+    return !t.empty() && *end == '\0' && std::isfinite(out) && out >= 0.0 && out <= max;
+  };
+  if (!seconds(text.substr(a + 1, b - a - 1), 31536000.0, after_s) || !seconds(text.substr(b + 1), 3600.0, for_s)) {
+    spdlog::warn("VE_TEST_STALL_AXIS='{}' ignored: AFTER_S must be 0..31536000 s and FOR_S 0..3600 s", text);
+    return false;
+  }
   axis = text.substr(0, a);
-  after_s = std::atof(text.substr(a + 1, b - a - 1).c_str());
-  for_s = std::atof(text.substr(b + 1).c_str());
   return true;
 }
 

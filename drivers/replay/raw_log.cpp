@@ -18,6 +18,8 @@ namespace {
 
 constexpr std::size_t kReadBufferBytes = std::size_t{1} << 20;  // > 2 * (kMaxLineBytes + 2)
 constexpr std::size_t kWriteFlushBytes = std::size_t{1} << 16;
+/// An over-long line is skipped up to its end, but no further than this.
+constexpr std::size_t kMaxSkipBytes = std::size_t{16} << 20;
 constexpr const char* kVersionPrefix = "virtual-encoder raw log";
 constexpr const char* kVersion = "v1";
 constexpr std::int64_t kMaxAbsTimeS = 9000000000LL;  // |t_s| * 1e9 fits in int64
@@ -254,14 +256,23 @@ RawLogReader::Line RawLogReader::next_line() {
     if (nl != nullptr || (eof_ && avail > 0) || avail > kMaxLineBytes + 1) {
       ++line_no_;
       if (nl == nullptr && avail > kMaxLineBytes + 1) {
-        // Over-long: drop everything up to and including the next '\n'.
+        // Over-long: drop everything up to and including the next '\n', but not
+        // for ever (a pipe of /dev/zero has no line end): past kMaxSkipBytes the
+        // rest of the input is not read.
+        std::size_t skipped = 0;
         for (;;) {
           const void* skip = std::memchr(base + begin_, '\n', end_ - begin_);
           if (skip != nullptr) {
             begin_ = static_cast<std::size_t>(static_cast<const char*>(skip) - base) + 1;
             return Line::too_long;
           }
+          skipped += end_ - begin_;
           begin_ = end_ = 0;
+          if (skipped > kMaxSkipBytes) {
+            eof_ = true;
+            done_ = true;
+            return Line::too_long;
+          }
           if (!fill()) return done_ ? Line::eof : Line::too_long;
         }
       }
