@@ -127,6 +127,8 @@ inline std::pair<int, int> reserve_domain(const std::vector<int>& not_these, std
       if (::flock(fd, LOCK_EX | LOCK_NB) == 0) {
         ::fchmod(fd, 0666);  // another user's tests may take it later (fails harmlessly if not ours)
         remove_stale_shm_ports(d);
+        std::printf("[ domain   ] DDS domain %d (pool %d-%d, %s)\n", d, pool.first, pool.last, path.c_str());
+        std::fflush(stdout);
         return {d, fd};
       }
       ::close(fd);
