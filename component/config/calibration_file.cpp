@@ -191,13 +191,18 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
   {
     // Absent: ideal sensors (no delays, no coil field, unit scale, no bias).
     Map m = root.map("sensor_model");
-    m.get("hall_delay_s", cal.model.hall_delay_s, schema::in_range(0.0, 0.01, "s"));
-    m.get("coil_field_v_per_mps2", cal.model.coil_field_v_per_mps2, schema::in_range(-1.0, 1.0, "V/(m/s^2)"));
-    m.get("accel_delay_s", cal.model.accel_delay_s, schema::in_range(0.0, 0.01, "s"));
-    m.get("accel_bias_mps2", cal.model.accel_bias_mps2, schema::in_range(-100.0, 100.0, "m/s^2"));
-    m.get("accel_scale", cal.model.accel_scale, schema::in_range(0.5, 2.0, ""));
-    m.get("frame_vibration_hz", cal.model.frame_vibration_hz, schema::in_range(0.0, 10000.0, "Hz"));
-    m.get("frame_vibration_mps2", cal.model.frame_vibration_mps2, schema::in_range(0.0, 1000.0, "m/s^2"));
+    // The value is kept even when out of range, so that the checksum is computed over
+    // what the file holds and a file the program wrote reads "unusable", not "corrupt".
+    const auto model = [&m](const char* key, double& out, double lo, double hi, const char* unit) {
+      if (m.get(key, out) && !(out >= lo && out <= hi)) m.value(key).error(schema::out_of_range(out, lo, hi, unit));
+    };
+    model("hall_delay_s", cal.model.hall_delay_s, 0.0, 0.01, "s");
+    model("coil_field_v_per_mps2", cal.model.coil_field_v_per_mps2, -1.0, 1.0, "V/(m/s^2)");
+    model("accel_delay_s", cal.model.accel_delay_s, 0.0, 0.01, "s");
+    model("accel_bias_mps2", cal.model.accel_bias_mps2, -100.0, 100.0, "m/s^2");
+    model("accel_scale", cal.model.accel_scale, 0.5, 2.0, "");
+    model("frame_vibration_hz", cal.model.frame_vibration_hz, 0.0, 10000.0, "Hz");
+    model("frame_vibration_mps2", cal.model.frame_vibration_mps2, 0.0, 1000.0, "m/s^2");
   }
   const Value table = root.required("table");
   if (table.present()) read_table(table.as_map(), cal.table, info.hall_count, expected);

@@ -964,6 +964,8 @@ void BadInputFiles::run_cases(const std::vector<Case>& cases, int first_index) {
     }
     if (!c.expect.empty())
       EXPECT_NE(text.find(c.expect), std::string::npos) << c.name << ": no '" << c.expect << "': " << describe(o);
+    // A file the program wrote is refused for what it holds, not called damaged.
+    if (c.mutate) EXPECT_EQ(text.find("checksum"), std::string::npos) << c.name << ": " << describe(o);
     // Never hundreds of digits: numbers are printed compactly.
     EXPECT_FALSE(std::regex_search(text, std::regex("[0-9]{41}"))) << c.name << ": " << describe(o);
 

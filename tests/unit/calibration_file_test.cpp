@@ -306,5 +306,79 @@ TEST_F(CalibrationFile, AtomicWriteKeepsPermissionsOfReplacedFile) {
   EXPECT_EQ(st.st_mode & 0777, 0640u);
 }
 
+/// Written by the program (valid checksum) after `change`: refused for use, by reason.
+TEST_F(CalibrationFile, UnusableTablesAreRefusedEvenWithAValidChecksum) {
+  struct Bad {
+    const char* what;
+    void (*change)(core::Calibration&);
+    const char* field;
+    const char* message;
+  };
+  const Bad bad[] = {
+      {"step of 1e-12 m", [](core::Calibration& c) { c.table.step_m = 1e-12; }, "table.step_m",
+       "unusable table: 1e-12 out of range [2.92969e-06, 0.0015] m (magnet pitch 0.012 m / 4096 .. / 8): finer than "
+       "any sensor resolves"},
+      {"step of a whole pitch", [](core::Calibration& c) { c.table.step_m = 0.012; }, "table.step_m",
+       "too coarse to interpolate"},
+      {"grid starting inside the travel", [](core::Calibration& c) { c.table.start_m = 0.001; }, "table.start_m",
+       "unusable table: the grid covers [0.001, 1.00103] m, not the motor's travel [0, 1] m: start_m must be <= 0"},
+      {"grid ending short of the travel", [](core::Calibration& c) { c.table.start_m = -0.01; }, "table.points",
+       "points * step_m falls short by 0.00996875 m"},
+      {"a value far beyond the ADC", [](core::Calibration& c) { c.table.v[5] = 1e6; }, "table.sensors[0]",
+       "unusable table: value 5: 1e+06 out of range [-5, 10] V"},
+      {"a flat row",
+       [](core::Calibration& c) {
+         for (int k = 0; k < c.table.points; ++k) c.table.v[static_cast<std::size_t>(3 * c.table.points + k)] = 1.0;
+       },
+       "table.sensors[3]", "unusable table: the row varies by 0 V"},
+      {"a Hall delay of 0.5 s", [](core::Calibration& c) { c.model.hall_delay_s = 0.5; }, "sensor_model.hall_delay_s",
+       "unusable table: 0.5 out of range [0, 0.01] s"},
+  };
+  for (const Bad& b : bad) {
+    core::Calibration c = cal_;
+    b.change(c);
+    c.info.id = core::calibration_checksum(c);
+    const std::string p = path("bad.cal.yaml");
+    spit(p, format_calibration(c));
+    const CalibrationLoad r = load_calibration_file(p, motor_);
+    // One error, or two for a tiny step (the grid then also misses the travel).
+    ASSERT_GE(r.errors.size(), 1u) << b.what;
+    ASSERT_LE(r.errors.size(), 2u) << b.what << ":\n" << to_string(r.errors);
+    const ConfigError& e = r.errors[0];
+    EXPECT_EQ(e.field, b.field) << b.what << ": " << e.to_string();
+    EXPECT_GT(e.line, 0) << b.what;
+    EXPECT_NE(e.message.find(b.message), std::string::npos) << b.what << ": " << e.to_string();
+    for (const auto& x : r.errors) EXPECT_EQ(x.message.rfind("unusable table: ", 0), 0u) << x.to_string();
+  }
+}
+
+TEST_F(CalibrationFile, ASecondDocumentAndEndlessFilesAreRefused) {
+  const std::string p = write_good();
+  spit(p, slurp(p) + "---\nformat: virtual-encoder-calibration\n");
+  const ConfigError e = only_error(load_calibration_file(p, motor_));
+  EXPECT_NE(e.message.find("a second YAML document"), std::string::npos) << e.to_string();
+
+  const ConfigError z = only_error(load_calibration_file("/dev/zero", motor_));
+  EXPECT_EQ(z.to_string(), "/dev/zero: cannot read calibration file: not a regular file (a character device)");
+
+  const std::string fifo = path("fifo.cal.yaml");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  const ConfigError f = only_error(load_calibration_file(fifo, motor_));
+  EXPECT_NE(f.message.find("not a regular file (a FIFO)"), std::string::npos) << f.to_string();
+
+  const std::string big = path("big.cal.yaml");
+  spit(big, "");
+  fs::resize_file(big, schema::kMaxCalibrationFileBytes + 1);
+  const ConfigError g = only_error(load_calibration_file(big, motor_));
+  EXPECT_NE(g.message.find("too large"), std::string::npos) << g.to_string();
+}
+
+TEST_F(CalibrationFile, ShippedCalibrationsAreUsable) {
+  for (const char* f : {"sim-realistic-x.cal.yaml", "sim-realistic-frame-accel-x.cal.yaml"}) {
+    const CalibrationLoad r = load_calibration_file(std::string(VE_SOURCE_DIR) + "/config/calibration/" + f, motor_);
+    EXPECT_TRUE(r.ok()) << f << ":\n" << to_string(r.errors);
+  }
+}
+
 }  // namespace
 }  // namespace ve::config

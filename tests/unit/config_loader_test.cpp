@@ -2,6 +2,7 @@
 // column and field, because that is what a user fixing a config file sees.
 #include <gtest/gtest.h>
 #include <stdlib.h>
+#include <sys/stat.h>
 
 #include <cerrno>
 #include <cstring>
@@ -882,4 +883,144 @@ TEST(ConfigLoader, ValidAccuracyAndHallAdaptationKeysLoadAndAreChecked) {
   expect_error(b, bad, 4, 27, "filter.valid_confidence_sigma", "out of range [0.5, 10] sigma");
 }
 
+}  // namespace ve::config
+
+namespace ve::config {
+namespace {
+
+TEST(ConfigLoader, ExtremeMotorValuesAreRefusedWithCompactNumbersAllInOneRun) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml",
+                               "motor: extreme\n"              // 1
+                               "magnet_pitch_m: 1e-300\n"      // 2
+                               "travel_m: 1e12\n"              // 3
+                               "sample_rate_hz: 1e308\n"       // 4
+                               "hall: {offset_v: 1e999}\n");   // 5
+  const auto path = dir.write("machine.yaml", "axes: [{name: x, motor: m.yaml}]\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 4u) << to_string(r.errors);
+  expect_error(r, motor, 2, 17, "magnet_pitch_m", "1e-300 out of range [0.001, 1] m");
+  expect_error(r, motor, 3, 11, "travel_m", "1e+12 out of range [0.001, 100] m");
+  expect_error(r, motor, 4, 17, "sample_rate_hz", "1e+308 out of range [100, 100000] Hz");
+  expect_error(r, motor, 5, 18, "hall.offset_v", "number out of range: 1e999");
+  for (const auto& e : r.errors) EXPECT_LT(e.to_string().size(), 160u) << e.to_string();
+}
+
+TEST(ConfigLoader, MotorValuesMustBeConsistent) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml",
+                               "motor: inconsistent\n"                      // 1
+                               "magnet_pitch_m: 0.001\n"                    // 2
+                               "travel_m: 50\n"                             // 3
+                               "hall: {saturation_margin_v: 3}\n");         // 4
+  const auto path = dir.write("machine.yaml", "axes: [{name: x, motor: m.yaml}]\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 2u) << to_string(r.errors);
+  expect_error(r, motor, 3, 11, "travel_m", "50000 magnet periods out of range [0, 10000]");
+  expect_error(r, motor, 4, 29, "hall.saturation_margin_v", "3 out of range [0, 2.5] V: must be less than half");
+}
+
+TEST(ConfigLoader, CompactNumbersNeverHideADifferenceFromALimit) {
+  EXPECT_EQ(schema::compact_number(1e-300), "1e-300");
+  EXPECT_EQ(schema::compact_number(0.0015), "0.0015");
+  EXPECT_EQ(schema::compact_number(-1e308), "-1e+308");
+  EXPECT_EQ(schema::out_of_range(1.0000001, 0.0, 1.0, "m"), "1.0000001 out of range [0, 1] m");
+  EXPECT_EQ(schema::out_of_range(7, 0, 3, ""), "7 out of range [0, 3]");
+}
+
+TEST(ConfigLoader, FaultOnASensorTheMotorDoesNotHaveIsRefused) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);  // 4 Hall sensors (the default)
+  const auto path = dir.write("machine.yaml",
+                              "axes:\n"                                                        // 1
+                              "  - name: x\n"                                                  // 2
+                              "    motor: m.yaml\n"                                            // 3
+                              "    driver:\n"                                                  // 4
+                              "      faults:\n"                                                // 5
+                              "        - {kind: hall_stuck_high, sensor: 7, start_s: 1}\n"     // 6
+                              "        - {kind: hall_stuck_low, sensor: 3}\n"                  // 7
+                              "        - {kind: accel_dead, sensor: 1}\n"                      // 8
+                              "        - {kind: hall_intermittent, sensor: 0, magnitude: 2}\n");  // 9
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 3u) << to_string(r.errors);
+  expect_error(r, path, 6, 43, "axes[0].driver.faults[0].sensor",
+               "7 out of range [0, 3] (Hall sensor index): motor 'test-motor' has 4 Hall sensors");
+  expect_error(r, path, 8, 38, "axes[0].driver.faults[2].sensor", "only used with the hall_* fault kinds");
+  expect_error(r, path, 9, 59, "axes[0].driver.faults[3].magnitude", "2 out of range [0, 1] (probability)");
+}
+
+TEST(ConfigLoader, ASecondYamlDocumentIsAnError) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const auto path = dir.write("machine.yaml",
+                              "axes: [{name: x, motor: m.yaml}]\n"  // 1
+                              "---\n"                               // 2
+                              "axes: [{name: y, motor: m.yaml}]\n"); // 3
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  EXPECT_EQ(r.errors[0].line, 3) << r.errors[0].to_string();
+  EXPECT_NE(r.errors[0].message.find("a second YAML document"), std::string::npos) << r.errors[0].to_string();
+
+  // An empty one after the marker counts too: it is where the marker is.
+  const auto empty = dir.write("empty-second.yaml", "axes: [{name: x, motor: m.yaml}]\n---\n");
+  const LoadResult e = load_machine_file(empty);
+  ASSERT_EQ(e.errors.size(), 1u) << to_string(e.errors);
+  EXPECT_EQ(e.errors[0].line, 2) << e.errors[0].to_string();
+
+  // A leading marker opens the only document: accepted.
+  const auto leading = dir.write("leading.yaml", "---\naxes: [{name: x, motor: m.yaml}]\n");
+  EXPECT_TRUE(load_machine_file(leading).ok()) << to_string(load_machine_file(leading).errors);
+}
+
+TEST(ConfigLoader, NonRegularAndOversizedFilesAreRefusedAtOnce) {
+  TempDir dir;
+  const auto fifo = dir.path("fifo.yaml");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  // Returns at once: a FIFO without a writer is never opened blocking.
+  const LoadResult f = load_machine_file(fifo);
+  ASSERT_EQ(f.errors.size(), 1u);
+  EXPECT_EQ(f.errors[0].to_string(), fifo + ": cannot read machine file: not a regular file (a FIFO)");
+
+  const LoadResult z = load_machine_file("/dev/zero");
+  ASSERT_EQ(z.errors.size(), 1u);
+  EXPECT_NE(z.errors[0].message.find("not a regular file (a character device)"), std::string::npos);
+
+  const auto big = dir.write("big.yaml", "");
+  fs::resize_file(big, schema::kMaxConfigFileBytes + 1);
+  const LoadResult b = load_machine_file(big);
+  ASSERT_EQ(b.errors.size(), 1u);
+  EXPECT_NE(b.errors[0].message.find("too large: 4194305 bytes, at most 4 MiB"), std::string::npos)
+      << b.errors[0].to_string();
+
+  // Referenced files: the reference is reported, naming the file.
+  const auto path = dir.write("machine.yaml", "axes: [{name: x, motor: /dev/zero}]\n");
+  const LoadResult m = load_machine_file(path);
+  ASSERT_EQ(m.errors.size(), 1u) << to_string(m.errors);
+  expect_error(m, path, 1, 25, "axes[0].motor", "not a regular file");
+}
+
+TEST(ConfigLoader, LongScalarsAreCutInMessages) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml", "motor: m\ntravel_m: " + std::string(400, '9') + "\n");
+  const auto path = dir.write("machine.yaml", "axes: [{name: x, motor: m.yaml}]\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
+  EXPECT_NE(r.errors[0].message.find("... (400 characters)"), std::string::npos) << r.errors[0].to_string();
+  EXPECT_LT(r.errors[0].to_string().size(), 200u);
+}
+
+TEST(ConfigLoader, ShippedFilesPassTheRangeChecks) {
+  for (const char* m : {"sim.yaml", "sim-realistic.yaml", "sim-realistic-frame-accel.yaml", "sim-3axis.yaml",
+                        "can-classic.yaml", "can-fd.yaml", "can-node-cv.yaml"}) {
+    const LoadResult r = load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/" + m);
+    EXPECT_TRUE(r.ok()) << m << ":\n" << to_string(r.errors);
+  }
+  for (const char* m : {"constant_velocity.yaml", "standstill.yaml", "statistics.yaml", "three_axes.yaml"}) {
+    const LoadResult r = load_machine_file(std::string(VE_SOURCE_DIR) + "/tests/integration/data/" + m);
+    EXPECT_TRUE(r.ok()) << m << ":\n" << to_string(r.errors);
+  }
+  EXPECT_TRUE(load_embedded_default().ok());
+}
+
+}  // namespace
 }  // namespace ve::config
