@@ -31,10 +31,7 @@
 
 #include "replay/raw_log.hpp"
 #include "temp_dir.hpp"
-#if __has_include("test_domain.hpp")
 #include "test_domain.hpp"
-#define VE_HAVE_TEST_DOMAIN 1
-#endif
 
 namespace {
 
@@ -591,14 +588,6 @@ std::ostream& operator<<(std::ostream& os, const SignalCase& c) { return os << c
 
 class Signal : public ::testing::TestWithParam<SignalCase> {};
 
-int test_domain() {
-#ifdef VE_HAVE_TEST_DOMAIN
-  return ve::test::dds_domain();
-#else
-  return 200 + static_cast<int>(getpid() % 30);
-#endif
-}
-
 TEST_P(Signal, EndsPromptlyLeavingOutputsCompleteOrAbsent) {
   const SignalCase& c = GetParam();
   ve::test::TempDir dir;
@@ -607,7 +596,7 @@ TEST_P(Signal, EndsPromptlyLeavingOutputsCompleteOrAbsent) {
   std::vector<std::string> args = expand(c.args, dir.path);
   for (auto& a : args) {
     if (a == "{fifo}") a = fifo.string();
-    if (a == "{domain}") a = std::to_string(test_domain());
+    if (a == "{domain}") a = std::to_string(ve::test::dds_domain());
   }
   int writer = -1;
   if (c.phase == Phase::blocked_in_read) {
