@@ -21,6 +21,7 @@
 
 #include "process.hpp"
 #include "speed.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -47,7 +48,7 @@ bool is_number(const std::string& s) {
 }
 
 TEST(MonitorOutput, CsvStaysCleanWhileFastDdsLogsAndOneStateWriterPerAxis) {
-  const int domain = 150 + static_cast<int>(getpid() % 40);  // this run's own domain
+  const int domain = ve::test::dds_domain();
   const std::string d = std::to_string(domain);
   const std::string machine = std::string(VE_SOURCE_DIR) + "/tests/integration/data/standstill.yaml";
   const std::string tmp = "/tmp/ve_it_monitor_output_" + std::to_string(getpid());

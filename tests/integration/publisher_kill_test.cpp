@@ -46,6 +46,7 @@
 
 #include "process.hpp"
 #include "speed.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -160,7 +161,7 @@ double worst(const std::vector<double>& v) { return v.empty() ? 0.0 : *std::max_
 
 TEST(PublisherKill, SubscribersSurviveEveryCrashAndReceiveAgain) {
   const int cycles = cycles_from_env();
-  const int domain = 150 + static_cast<int>(getpid() % 40);  // this run's own domain
+  const int domain = ve::test::dds_domain();
   const std::string d = std::to_string(domain);
   const std::string machine = std::string(VE_SOURCE_DIR) + "/tests/integration/data/standstill.yaml";
   const std::string profiles = std::string(VE_SOURCE_DIR) + "/deploy/dds-profiles.xml";
