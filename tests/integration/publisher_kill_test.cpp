@@ -298,6 +298,7 @@ TEST(PublisherKill, SubscribersSurviveEveryCrashAndReceiveAgain) {
     std::remove(s.out_path.c_str());
     std::remove(s.err_path.c_str());
   }
+  std::remove((tmp + "run.log").c_str());
 }
 
 }  // namespace
