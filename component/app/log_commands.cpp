@@ -66,6 +66,9 @@ int record_command(const RecordOptions& options) {
     std::fprintf(stderr, "axis '%s': %s\n", axis->name.c_str(), error.c_str());
     return 2;
   }
+  // A signal also wakes a read() that sleeps until a far-off sample is due (a paced
+  // replay with a gap in time), so that the recording ends cleanly at once.
+  TerminationCallback wake([&source] { source->stop(); });
   // The first sample tells which optional columns the source fills.
   core::RawSample s;
   // A live source (a CAN bus) may take a moment to deliver its first sample.

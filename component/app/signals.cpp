@@ -57,6 +57,15 @@ std::condition_variable& wake_cv() {
   return *cv;
 }
 
+std::mutex& callback_mutex() {
+  static auto* m = new std::mutex;
+  return *m;
+}
+std::function<void()>& callback() {
+  static auto* f = new std::function<void()>;
+  return *f;
+}
+
 /// Ends the process now: temporaries removed, the signal named, 128 + signal.
 [[noreturn]] void force_exit(int sig) {
   const std::size_t removed = config::remove_scratch_files_for_exit();
@@ -92,6 +101,10 @@ void watch() {
     g_flag.store(true);
   }
   wake_cv().notify_all();
+  {
+    std::lock_guard<std::mutex> lock(callback_mutex());
+    if (callback()) callback()();
+  }
   // A second signal ends the process at once; so does silence past the grace period.
   if (another_signal_within(set, kGraceS)) force_exit(sig);
   if (!g_noticed.load()) force_exit(sig);
@@ -119,6 +132,17 @@ bool termination_requested() {
 }
 
 const std::atomic<bool>& termination_flag() { return g_flag; }
+
+TerminationCallback::TerminationCallback(std::function<void()> wake) {
+  std::lock_guard<std::mutex> lock(callback_mutex());
+  callback() = std::move(wake);
+  if (g_flag.load() && callback()) callback()();  // the signal came first
+}
+
+TerminationCallback::~TerminationCallback() {
+  std::lock_guard<std::mutex> lock(callback_mutex());
+  callback() = nullptr;
+}
 
 int termination_signal() { return g_signal.load(); }
 

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <atomic>
+#include <functional>
 
 namespace ve::app {
 
@@ -31,6 +32,17 @@ bool termination_requested();
 /// Set when SIGINT or SIGTERM arrived, for code that polls a cancel flag (it does
 /// not count as taking notice: check termination_requested() once it returns).
 const std::atomic<bool>& termination_flag();
+
+/// While it lives, `wake` is called (from the watcher thread, once) when SIGINT or
+/// SIGTERM arrives, e.g. to stop a source whose read() sleeps until a far-off sample
+/// is due. The destructor waits for a call in progress. At most one at a time.
+class TerminationCallback {
+ public:
+  explicit TerminationCallback(std::function<void()> wake);
+  ~TerminationCallback();
+  TerminationCallback(const TerminationCallback&) = delete;
+  TerminationCallback& operator=(const TerminationCallback&) = delete;
+};
 
 /// The signal that arrived (SIGINT or SIGTERM), 0 if none.
 int termination_signal();

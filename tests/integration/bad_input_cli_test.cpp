@@ -595,6 +595,17 @@ TEST_P(Signal, EndsPromptlyLeavingOutputsCompleteOrAbsent) {
   ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
   std::vector<std::string> args = expand(c.args, dir.path);
   for (auto& a : args) {
+    if (a == "{gap_machine}") {
+      // A paced replay whose next row is due in 1000 s: the source sleeps in read().
+      std::string log = slurp(inputs().short_log);
+      std::string last = log.substr(log.rfind('\n', log.size() - 2) + 1);
+      log += "1000.000000000" + last.substr(last.find(','));
+      write_text(dir.path / "gap.csv", log);
+      write_text(dir.path / "gap.yaml", "axes:\n  - name: x\n    motor: " + std::string(VE_SOURCE_DIR) +
+                                            "/config/motors/sim-12mm.yaml\n    driver: {type: replay, log: " +
+                                            (dir.path / "gap.csv").string() + ", realtime: true}\n");
+      a = (dir.path / "gap.yaml").string();
+    }
     if (a == "{fifo}") a = fifo.string();
     if (a == "{domain}") a = std::to_string(ve::test::dds_domain());
   }
@@ -661,6 +672,7 @@ const SignalCase kSignalCases[] = {
   // Ending a recording on a signal is how a recording of unbounded duration ends: exit 0, the log complete.
   {"RecordRunningSigint", {"record", "--duration", "0", "--out", "{dir}/r.csv"}, Phase::working, SIGINT, 1500, {0}, "{dir}/r.csv", true},
   {"RecordRunningSigterm", {"record", "--duration", "0", "--out", "{dir}/r.csv"}, Phase::working, SIGTERM, 1500, {0}, "{dir}/r.csv", true},
+  {"RecordPacedReplayAsleepSigint", {"record", "--config", "{gap_machine}", "--duration", "0", "--out", "{dir}/r.csv"}, Phase::working, SIGINT, 1500, {0}, "{dir}/r.csv", true},
   {"RunSigint", {"run", "--domain", "{domain}"}, Phase::working, SIGINT, 1500, {0}, "", false},
   {"RunSigterm", {"run", "--domain", "{domain}"}, Phase::working, SIGTERM, 1500, {0}, "", false},
   {"MonitorSigint", {"monitor", "--domain", "{domain}"}, Phase::working, SIGINT, 1500, {0}, "", false},
