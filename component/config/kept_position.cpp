@@ -47,12 +47,13 @@ KeptRead take_kept_position(const std::string& path, const std::string& axis, co
     return KeptRead::refused;
   }
   try {
-    const std::vector<YAML::Node> docs = YAML::LoadAll(text);
-    if (docs.size() > 1) {
-      why = path + ": a second YAML document (after '---'): not a kept position written by this program";
+    const YAML::Node root = YAML::Load(text);
+    int line = 0, column = 0;
+    if (schema::second_yaml_document(text, line, column)) {
+      why = path + ":" + std::to_string(line) + ": a second YAML document (after '---'): not a kept position "
+            "written by this program";
       return KeptRead::refused;
     }
-    const YAML::Node root = docs.empty() ? YAML::Node() : docs.front();
     if (!root.IsMap()) {
       why = path + ": not a mapping";
       return KeptRead::refused;

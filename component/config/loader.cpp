@@ -4,6 +4,7 @@
 #include <sched.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -16,6 +17,7 @@
 #include <filesystem>
 #include <limits>
 #include <map>
+#include <sstream>
 
 #include "config/embedded.hpp"
 #include "core/sample.hpp"
@@ -207,50 +209,83 @@ Document::~Document() = default;
 
 namespace {
 
-/// Where the document after the first one starts: its root's position, or for an
-/// empty one the line of its "---" marker.
-Pos second_document_pos(const std::string& text, const YAML::Node& second) {
-  const Pos p = second.IsNull() ? Pos{} : to_pos(second.Mark());
-  if (p.line) return p;
-  // Markers at the start of a line; the first one may open the first document.
-  std::vector<int> markers;
-  bool content_before = false;
-  int line = 1;
-  for (std::size_t i = 0; i < text.size();) {
-    const std::size_t end = std::min(text.find('\n', i), text.size());
-    const std::string_view l(text.data() + i, end - i);
-    if (l.substr(0, 3) == "---" && (l.size() == 3 || l[3] == ' ' || l[3] == '\t' || l[3] == '\r')) {
-      if (content_before || !markers.empty()) return {line, 1};
-      markers.push_back(line);
-    } else if (!l.empty() && l[0] != '#' && l.find_first_not_of(" \t\r") != std::string_view::npos) {
-      content_before = true;
-    }
-    i = end + 1;
-    ++line;
+/// Records where a document's first event is (the parser's own position).
+struct FirstMark final : YAML::EventHandler {
+  YAML::Mark mark;
+  bool any = false;
+  void at(const YAML::Mark& m) {
+    if (!any) mark = m;
+    any = true;
   }
-  return {line > 1 ? line - 1 : 1, 1};
+  void OnDocumentStart(const YAML::Mark& m) override { at(m); }
+  void OnDocumentEnd() override {}
+  void OnNull(const YAML::Mark& m, YAML::anchor_t) override { at(m); }
+  void OnAlias(const YAML::Mark& m, YAML::anchor_t) override { at(m); }
+  void OnScalar(const YAML::Mark& m, const std::string&, YAML::anchor_t, const std::string&) override { at(m); }
+  void OnSequenceStart(const YAML::Mark& m, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {
+    at(m);
+  }
+  void OnSequenceEnd() override {}
+  void OnMapStart(const YAML::Mark& m, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {
+    at(m);
+  }
+  void OnMapEnd() override {}
+};
+
+/// A line starting with a document marker: only then can a file hold two documents.
+bool has_document_marker(const std::string& text) {
+  for (std::size_t i = 0; i < text.size(); i = text.find('\n', i) + 1) {
+    if (text.compare(i, 3, "---") == 0 || text.compare(i, 3, "...") == 0) return true;
+    if (text.find('\n', i) == std::string::npos) break;
+  }
+  return false;
 }
 
 }  // namespace
 
+bool second_yaml_document(const std::string& text, int& line, int& column) {
+  if (!has_document_marker(text)) return false;
+  // yaml-cpp's own LoadAll() loops forever on some malformed input (a lone ','): its
+  // parser hands out the same empty document again without advancing. Two documents
+  // at most are asked for, and a second one counts only when the parser moved on.
+  std::istringstream in(text);
+  YAML::Parser parser(in);
+  FirstMark first, second;
+  try {
+    if (!parser.HandleNextDocument(first)) return false;
+    if (!parser.HandleNextDocument(second) || !second.any) return false;
+  } catch (const YAML::Exception& e) {
+    // The first document was read before (Document::parse): the error is in the second.
+    const Pos p = to_pos(e.mark);
+    line = p.line ? p.line : 1;
+    column = p.line ? p.column : 1;
+    return true;
+  }
+  if (second.mark.pos <= first.mark.pos) return false;
+  line = second.mark.line + 1;
+  column = second.mark.column + 1;
+  return true;
+}
+
 bool Document::parse(const std::string& text) {
   try {
-    std::vector<YAML::Node> docs = YAML::LoadAll(text);
-    if (docs.size() > 1) {
-      error(second_document_pos(text, docs[1]), "",
-            "a second YAML document (after '---'): a file holds one document; remove the '---' line or split the "
-            "file");
-      return false;
-    }
-    impl_->root = docs.empty() ? YAML::Node() : docs.front();
-    impl_->parsed = true;
-    return true;
+    impl_->root = YAML::Load(text);
   } catch (const YAML::ParserException& e) {
     error(to_pos(e.mark), "", "malformed YAML: " + e.msg);
+    return false;
   } catch (const YAML::Exception& e) {
     error(to_pos(e.mark), "", "malformed YAML: " + e.msg);
+    return false;
   }
-  return false;
+  int line = 0, column = 0;
+  if (second_yaml_document(text, line, column)) {
+    error({line, column}, "",
+          "a second YAML document (after '---'): a file holds one document; remove the '---' line or split the "
+          "file");
+    return false;
+  }
+  impl_->parsed = true;
+  return true;
 }
 
 void Document::error(Pos pos, std::string field, std::string message) {

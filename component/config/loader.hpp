@@ -251,6 +251,11 @@ class Document {
   std::unique_ptr<Impl> impl_;
 };
 
+/// True when `text` holds a second YAML document after the first (a `---` or `...`
+/// line followed by more); `line`/`column` (1-based) say where it starts. Never loops
+/// on malformed input, unlike yaml-cpp's LoadAll().
+bool second_yaml_document(const std::string& text, int& line, int& column);
+
 /// Largest machine, motor, CAN layout or kept-position file read [bytes]: far above any
 /// real one (a few kB), small enough that a wrong path cannot exhaust the memory.
 inline constexpr std::size_t kMaxConfigFileBytes = 4u << 20;

@@ -958,7 +958,7 @@ TEST(ConfigLoader, ASecondYamlDocumentIsAnError) {
                               "axes: [{name: y, motor: m.yaml}]\n"); // 3
   const LoadResult r = load_machine_file(path);
   ASSERT_EQ(r.errors.size(), 1u) << to_string(r.errors);
-  EXPECT_EQ(r.errors[0].line, 3) << r.errors[0].to_string();
+  EXPECT_EQ(r.errors[0].line, 2) << r.errors[0].to_string();  // its '---'
   EXPECT_NE(r.errors[0].message.find("a second YAML document"), std::string::npos) << r.errors[0].to_string();
 
   // An empty one after the marker counts too: it is where the marker is.
@@ -966,6 +966,10 @@ TEST(ConfigLoader, ASecondYamlDocumentIsAnError) {
   const LoadResult e = load_machine_file(empty);
   ASSERT_EQ(e.errors.size(), 1u) << to_string(e.errors);
   EXPECT_EQ(e.errors[0].line, 2) << e.errors[0].to_string();
+
+  // yaml-cpp's LoadAll() never returns on a lone ','; the loader does, with a plain error.
+  const auto comma = dir.write("comma.yaml", ",\n---\n");
+  EXPECT_FALSE(load_machine_file(comma).ok());
 
   // A leading marker opens the only document: accepted.
   const auto leading = dir.write("leading.yaml", "---\naxes: [{name: x, motor: m.yaml}]\n");
