@@ -203,20 +203,26 @@ std::vector<std::string> leftovers(const fs::path& dir, const std::string& part)
   return found;
 }
 
-/// Shared inputs, made once: a short raw log of the built-in simulator and a longer one.
+/// Shared inputs, each made on first use (ctest runs every case in a process of its
+/// own): a short raw log of the built-in simulator and a longer one.
 struct Inputs {
   ve::test::TempDir dir{"ve_bad_cli"};
-  fs::path short_log, long_log, machine_dir;
-  Inputs() {
-    short_log = dir.path / "short.csv";
-    long_log = dir.path / "long.csv";
-    const Outcome a = run_to_end({"record", "--out", short_log.string(), "--duration", "0.25", "--fast"}, dir.path);
-    const Outcome b = run_to_end({"record", "--out", long_log.string(), "--duration", "60", "--fast"}, dir.path);
-    if (a.code != 0 || b.code != 0) ADD_FAILURE() << describe(a) << describe(b);
+  const fs::path& short_log() { return made(short_log_, "short.csv", "0.25"); }
+  const fs::path& long_log() { return made(long_log_, "long.csv", "60"); }
+
+ private:
+  const fs::path& made(fs::path& path, const char* name, const char* seconds) {
+    if (path.empty()) {
+      path = dir.path / name;
+      const Outcome o = run_to_end({"record", "--out", path.string(), "--duration", seconds, "--fast"}, dir.path);
+      if (o.code != 0) ADD_FAILURE() << describe(o);
+    }
+    return path;
   }
+  fs::path short_log_, long_log_;
 };
 Inputs& inputs() {
-  static Inputs in;  // made on first use, removed at the end of the process
+  static Inputs in;  // removed at the end of the process
   return in;
 }
 
@@ -229,8 +235,8 @@ std::vector<std::string> expand(std::vector<std::string> args, const fs::path& d
     };
     put("{dir}", dir.string());
     put("{file}", (dir / "a_file").string());
-    put("{log}", inputs().short_log.string());
-    put("{long}", inputs().long_log.string());
+    if (a.find("{log}") != std::string::npos) put("{log}", inputs().short_log().string());
+    if (a.find("{long}") != std::string::npos) put("{long}", inputs().long_log().string());
     put("{src}", VE_SOURCE_DIR);
   }
   return args;
@@ -552,7 +558,7 @@ TEST(BadInputCli, UnwritableDirectoryIsNamedWithTheReason) {
   fs::permissions(dir.path / "ro", fs::perms::owner_read | fs::perms::owner_exec);
   for (const auto& args :
        {std::vector<std::string>{"record", "--fast", "--duration", "0.1", "--out", (dir.path / "ro/r.csv").string()},
-        std::vector<std::string>{"evaluate", "--log", inputs().short_log.string(), "--estimates",
+        std::vector<std::string>{"evaluate", "--log", inputs().short_log().string(), "--estimates",
                                  (dir.path / "ro/e.csv").string()},
         std::vector<std::string>{"calibrate", "--out", (dir.path / "ro/c.cal.yaml").string()}}) {
     const Outcome o = run_to_end(args, dir.path);
@@ -597,7 +603,7 @@ TEST_P(Signal, EndsPromptlyLeavingOutputsCompleteOrAbsent) {
   for (auto& a : args) {
     if (a == "{gap_machine}") {
       // A paced replay whose next row is due in 1000 s: the source sleeps in read().
-      std::string log = slurp(inputs().short_log);
+      std::string log = slurp(inputs().short_log());
       std::string last = log.substr(log.rfind('\n', log.size() - 2) + 1);
       log += "1000.000000000" + last.substr(last.find(','));
       write_text(dir.path / "gap.csv", log);
