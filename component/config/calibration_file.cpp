@@ -203,6 +203,8 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     model("accel_scale", cal.model.accel_scale, 0.5, 2.0, "");
     model("frame_vibration_hz", cal.model.frame_vibration_hz, 0.0, 10000.0, "Hz");
     model("frame_vibration_mps2", cal.model.frame_vibration_mps2, 0.0, 1000.0, "m/s^2");
+    // Optional: only when the sensor node reported its temperature during calibration.
+    model("temperature_c", cal.model.temperature_c, -60.0, 200.0, "deg C");
   }
   const Value table = root.required("table");
   if (table.present()) read_table(table.as_map(), cal.table, info.hall_count, expected);
@@ -357,6 +359,11 @@ std::string format_calibration(const core::Calibration& cal) {
                   m.hall_delay_s, m.coil_field_v_per_mps2, m.accel_delay_s, m.accel_bias_mps2, m.accel_scale,
                   m.frame_vibration_hz, m.frame_vibration_mps2);
     out += buf;
+    if (std::isfinite(m.temperature_c)) {
+      std::snprintf(buf, sizeof buf, "  temperature_c: %.3f         # the sensor node's mean temperature during calibration\n",
+                    m.temperature_c);
+      out += buf;
+    }
   }
   out += "table:\n";
   // Shortest round-trip form: the grid comes back bit-identical.

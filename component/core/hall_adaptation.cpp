@@ -33,6 +33,11 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   p_common_ = p0_common_;
   model_var_common_ = f.hall_common_gain_model_std * f.hall_common_gain_model_std;
   model_var_v2_ = f.hall_adaptation_model_std_v * f.hall_adaptation_model_std_v;
+  common_tc_per_k_ = f.magnet_remanence_tc_per_k + f.hall_gain_tc_per_k;
+  tc_rel_std_ = f.temperature_coefficient_rel_std;
+  gain_tc_std_ = f.hall_gain_tc_std_per_k;
+  offset_tc_std_v_ = f.hall_offset_tc_std_v_per_k;
+  temperature_alpha_ = 1.0 - std::exp(-ts_s / kTemperatureAverageS);
 }
 
 void HallAdaptation::update_common(double relative_change, double variance) {
@@ -50,6 +55,44 @@ void HallAdaptation::update_common(double relative_change, double variance) {
   const double g = 1.0 + common_gain_;
   common_gain_ = std::clamp(g * (1.0 + change) - 1.0, -gain_limit_, gain_limit_);
   p_common_ = std::max(p * (1.0 + m * info) / den, 1e-14);
+}
+
+void HallAdaptation::temperature(double delta_k) {
+  if (!enabled_ || !std::isfinite(delta_k)) return;
+  const double limit2 = gain_limit_ * gain_limit_;
+  if (!temperature_known_) {
+    // Known from the start: instead of the wide start-up prior of an unknown
+    // temperature, what the data sheet predicts for this rise, as sure as the
+    // coefficients and one reading of the node (its noise and resolution) are.
+    temperature_known_ = true;
+    temperature_k_ = smoothed_k_ = delta_k;
+    const double g = common_tc_per_k_ * delta_k;
+    common_gain_ = std::clamp(g, -gain_limit_, gain_limit_);
+    const double sd = tc_rel_std_ * std::abs(g);
+    const double sd_reading = common_tc_per_k_ * kReadingStdK;
+    p_common_ = std::min(p0_gg_ + sd * sd + sd_reading * sd_reading, limit2);
+    const double rise2 = delta_k * delta_k + kReadingStdK * kReadingStdK;
+    for (int i = 0; i < sensors_; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * rise2, limit2);
+      p_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * rise2;
+    }
+    return;
+  }
+  // The motor's temperature moves over minutes; the node's reading is noisy and
+  // coarse: follow its average over a few seconds, in steps of a quarter kelvin.
+  smoothed_k_ += temperature_alpha_ * (delta_k - smoothed_k_);
+  const double d = smoothed_k_ - temperature_k_;
+  if (std::abs(d) < 0.25) return;
+  temperature_k_ = smoothed_k_;
+  const double dg = common_tc_per_k_ * d;
+  common_gain_ = std::clamp((1.0 + common_gain_) * (1.0 + dg) - 1.0, -gain_limit_, gain_limit_);
+  p_common_ = std::min(p_common_ + tc_rel_std_ * tc_rel_std_ * dg * dg, limit2);
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * d * d, limit2);
+    p_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d * d;
+  }
 }
 
 void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSample& out) const {

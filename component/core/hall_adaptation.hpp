@@ -53,6 +53,13 @@ class HallAdaptation {
   /// posterior, which already holds common_gain_variance() as its prior).
   void update_common(double relative_change, double variance);
 
+  /// The motor is `delta_k` warmer than at calibration (reported by the sensor
+  /// node). The first call sets what the data sheet's coefficients predict: the
+  /// common gain, its uncertainty (the coefficients' own), and how far each sensor's
+  /// gain and offset may have moved; later calls move the common gain by the
+  /// predicted change and widen the uncertainties by what the change allows.
+  void temperature(double delta_k);
+
   /// Learns from one sample: `x_m` the position the Halls saw (the filter's
   /// prediction at the Halls' instant); only sensors in `mask` (not this sample's
   /// outlier) and out of saturation take part. What a position error would explain
@@ -111,6 +118,14 @@ class HallAdaptation {
   double q_common_, p0_common_;       ///< the common gain's random walk and start-up variance
   double model_var_common_;           ///< the least variance one fix's common gain can have
   double model_var_v2_;               ///< the least variance one sample's residual has [V^2]
+  double common_tc_per_k_;            ///< remanence + mean Hall sensitivity coefficient [1/K]
+  double tc_rel_std_, gain_tc_std_, offset_tc_std_v_;
+  static constexpr double kReadingStdK = 0.3;         ///< one reading of the node: noise and resolution [K]
+  static constexpr double kTemperatureAverageS = 3.0; ///< the reading is averaged over about this long [s]
+  double temperature_alpha_;
+  double smoothed_k_ = 0.0;           ///< the averaged rise [K]
+  double temperature_k_ = 0.0;        ///< the rise last applied [K]
+  bool temperature_known_ = false;
   double common_gain_ = 0.0, p_common_ = 0.0;
   double p0_gg_, p0_dd_;              ///< start-up variances, where the random walk stops
   double gain_limit_, offset_limit_v_;

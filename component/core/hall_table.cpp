@@ -70,6 +70,8 @@ std::string calibration_checksum(const HallTable& table, const SensorModel& mode
   mix_rounded(model.accel_scale, 1e-9);
   mix_rounded(model.frame_vibration_hz, 1e-6);
   mix_rounded(model.frame_vibration_mps2, 1e-7);
+  // Only when recorded, so that files without it keep their checksum.
+  if (std::isfinite(model.temperature_c)) mix_rounded(model.temperature_c, 1e-3);
   static const char* kHex = "0123456789abcdef";
   std::string out(16, '0');
   for (int i = 15; i >= 0; --i) {

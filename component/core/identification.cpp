@@ -448,6 +448,18 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   out.model.accel_scale = rep.accel_scale;
   out.model.frame_vibration_hz = rep.vibration_hz;
   out.model.frame_vibration_mps2 = rep.vibration_mps2;
+  {
+    // The sensor node's mean temperature over the run, when it reports one.
+    double sum = 0.0;
+    long n = 0;
+    for (const auto& seg : segments)
+      for (const auto& smp : seg.samples)
+        if (smp.temperature_valid && std::isfinite(smp.temperature_c)) {
+          sum += smp.temperature_c;
+          ++n;
+        }
+    out.model.temperature_c = n > 0 ? sum / static_cast<double>(n) : std::numeric_limits<double>::quiet_NaN();
+  }
   out.info.motor = motor.name;
   out.info.hall_count = nh;
   out.info.magnet_pitch_m = motor.magnet_pitch_m;

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -58,6 +59,10 @@ struct SensorModel {
   /// identified. 0 Hz: none, or removed by a frame accelerometer.
   double frame_vibration_hz = 0.0;
   double frame_vibration_mps2 = 0.0;
+  /// The sensor node's mean temperature during the calibration run [deg C]; NaN:
+  /// not reported. With it and a reported temperature while running, the Hall
+  /// adaptation knows how far the motor is from its calibration (hall_adaptation.hpp).
+  double temperature_c = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// Block K tuning (the paper's Kalman filter on [x, v, a], extended).
@@ -154,11 +159,24 @@ struct FilterConfig {
   double hall_gain_limit = 0.1;
   double hall_offset_limit_v = 0.1;
   /// The gain all sensors share (the magnets' field, which falls by about 0.12 %/K,
-  /// and the sensors' common sensitivity): its uncertainty at start-up (a motor
-  /// 20 K away from its calibration temperature is about 4 % off), and how fast it
-  /// may drift [1/sqrt(s)]. It is estimated with the position in every Hall fix.
-  double hall_common_gain_initial_std = 0.001;
+  /// and the sensors' common sensitivity): its uncertainty at start-up when the
+  /// temperature is not known (a motor 20 K away from its calibration temperature
+  /// is about 4 % off), and how fast it may drift [1/sqrt(s)]. It is estimated with
+  /// the position in every Hall fix; where one sensor alone carries the fix it
+  /// cannot be, and the fix's sigma says so until the carriage moves.
+  double hall_common_gain_initial_std = 0.05;
   double hall_common_gain_random_walk_per_sqrt_s = 3e-4;
+  /// Data-sheet temperature coefficients, used when the sensor node reports its
+  /// temperature and the calibration recorded it: the magnets' remanence and the
+  /// Halls' mean sensitivity [1/K] (their sum moves the common gain), the spread
+  /// of the sensitivity between sensors [1/K] and of the zero-field offset's drift
+  /// [V/K] (what each sensor's own gain and offset may have moved by), and how
+  /// sure the mean coefficients are, relative [-].
+  double magnet_remanence_tc_per_k = -0.0012;
+  double hall_gain_tc_per_k = -0.001;
+  double hall_gain_tc_std_per_k = 0.0003;
+  double hall_offset_tc_std_v_per_k = 0.0003;
+  double temperature_coefficient_rel_std = 0.2;
   /// What one sample can tell of a sensor's own gain and offset at best: the
   /// table's own error and the prediction's error repeat from sample to sample,
   /// so a sample's residual is trusted no more than this [V] (keeps the sensors'

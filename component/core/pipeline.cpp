@@ -220,6 +220,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.t_ns = sample.t_ns;
   out_.seq = sample.seq;
   out_.samples_skipped = 0;
+  // The sensor node's temperature, against the calibration's: the Hall adaptation
+  // starts from (and follows) what the data sheet predicts for the difference.
+  if (sample.temperature_valid && std::isfinite(cfg_.sensors.temperature_c))
+    adapt_.temperature(sample.temperature_c - cfg_.sensors.temperature_c);
 
   // Accelerometer health: missing, saturated, or dead (the same reading again and again).
   bool accel_ok = accel_usable(sample);
