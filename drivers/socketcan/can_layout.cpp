@@ -101,80 +101,102 @@ const char* to_string(DecodeStatus s) {
   return "?";
 }
 
-LayoutProblem check_layout(const CanLayout& l) {
-  auto problem = [](std::string where, std::string msg) { return LayoutProblem{std::move(where), std::move(msg)}; };
+std::vector<LayoutProblem> check_layout_all(const CanLayout& l) {
+  std::vector<LayoutProblem> problems;
+  auto problem = [&problems](std::string where, std::string msg) {
+    problems.push_back(LayoutProblem{std::move(where), std::move(msg)});
+  };
   const std::uint32_t id_limit = l.extended_id ? 0x1FFFFFFFu : 0x7FFu;
   if (l.can_id > id_limit)
-    return problem("can_id", std::string("does not fit a ") + (l.extended_id ? "29" : "11") + "-bit identifier");
+    problem("can_id", std::string("does not fit a ") + (l.extended_id ? "29" : "11") + "-bit identifier");
   if (l.fd) {
     if (!valid_fd_length(l.frame_length))
-      return problem("frame_length", "a CAN FD frame carries 0..8, 12, 16, 20, 24, 32, 48 or 64 bytes, got " +
-                                         std::to_string(l.frame_length));
+      problem("frame_length", "a CAN FD frame carries 0..8, 12, 16, 20, 24, 32, 48 or 64 bytes, got " +
+                                  std::to_string(l.frame_length));
   } else if (l.frame_length < 0 || l.frame_length > 8) {
-    return problem("frame_length", "a classic CAN frame carries 0..8 bytes, got " + std::to_string(l.frame_length) +
-                                       " (set fd: true for longer frames)");
+    problem("frame_length", "a classic CAN frame carries 0..8 bytes, got " + std::to_string(l.frame_length) +
+                                " (set fd: true for longer frames)");
   }
   if (l.samples_per_frame < 1 || l.samples_per_frame > kMaxSamplesPerFrame)
-    return problem("samples_per_frame", "must be 1.." + std::to_string(kMaxSamplesPerFrame));
+    problem("samples_per_frame", "must be 1.." + std::to_string(kMaxSamplesPerFrame));
   if (l.samples_per_frame > 1 && l.sample_stride_bits <= 0)
-    return problem("sample_stride_bits", "must be > 0 when samples_per_frame > 1");
-  if (!(l.sample_rate_hz > 0.0)) return problem("sample_rate_hz", "must be > 0");
+    problem("sample_stride_bits", "must be > 0 when samples_per_frame > 1");
+  if (!(l.sample_rate_hz > 0.0)) problem("sample_rate_hz", "must be > 0");
   if (l.hall_count < 1 || l.hall_count > core::kMaxHalls)
-    return problem("hall_count", "must be 1.." + std::to_string(core::kMaxHalls));
-  if (!l.accel.present) return problem("signals.accel", "the accelerometer signal is required");
+    problem("hall_count", "must be 1.." + std::to_string(core::kMaxHalls));
+  if (!l.accel.present) problem("signals.accel", "the accelerometer signal is required");
+  // Where the signals lie depends on the frame: placing them in a wrong one would
+  // only repeat its problem.
+  for (const auto& p : problems)
+    if (p.where == "frame_length" || p.where == "samples_per_frame" || p.where == "sample_stride_bits" ||
+        p.where == "hall_count")
+      return problems;
 
   auto check_signal = [&](const SignalSpec& s, const std::string& where) -> LayoutProblem {
     if (!s.present) return {};
     if (s.length < 1 || s.length > kMaxSignalBits)
-      return problem(where + ".length", "must be 1.." + std::to_string(kMaxSignalBits));
-    if (s.start_bit < 0) return problem(where + ".start_bit", "must be >= 0");
-    if (!(s.scale != 0.0) || !std::isfinite(s.scale)) return problem(where + ".scale", "must be non-zero");
+      return LayoutProblem{where + ".length", "must be 1.." + std::to_string(kMaxSignalBits)};
+    if (s.start_bit < 0) return LayoutProblem{where + ".start_bit", "must be >= 0"};
+    if (!(s.scale != 0.0) || !std::isfinite(s.scale)) return LayoutProblem{where + ".scale", "must be non-zero"};
     return {};
   };
   std::array<std::uint64_t, 8> used{};
   const int frame_bits = l.frame_length * 8;
-  auto place = [&](const SignalSpec& s, const std::string& where, int samples) -> LayoutProblem {
-    if (!s.present) return {};
+  // Each signal's first problem; the others are still placed.
+  auto place = [&](const SignalSpec& s, const std::string& where, int samples) {
+    if (!s.present) return;
     LayoutProblem p = check_signal(s, where);
-    if (!p.message.empty()) return p;
+    if (!p.message.empty()) {
+      problems.push_back(std::move(p));
+      return;
+    }
     for (int k = 0; k < samples; ++k) {
       bool outside = false;
       if (!occupy(used, s, shifted_start(s, k * l.sample_stride_bits), frame_bits, outside)) {
         const std::string which = samples > 1 ? " (copy for sample " + std::to_string(k) + ")" : std::string();
-        return problem(where, outside ? "bits lie outside the " + std::to_string(l.frame_length) + "-byte frame" + which
-                                      : "overlaps another signal" + which);
+        problem(where, outside ? "bits lie outside the " + std::to_string(l.frame_length) + "-byte frame" + which
+                               : "overlaps another signal" + which);
+        return;
       }
     }
-    return {};
   };
   for (int i = 0; i < l.hall_count; ++i) {
     const std::string where = "signals.hall_" + std::to_string(i);
-    if (!l.hall[static_cast<std::size_t>(i)].present) return problem(where, "missing (hall_count is " + std::to_string(l.hall_count) + ")");
-    LayoutProblem p = place(l.hall[static_cast<std::size_t>(i)], where, l.samples_per_frame);
-    if (!p.message.empty()) return p;
+    if (!l.hall[static_cast<std::size_t>(i)].present) {
+      problem(where, "missing (hall_count is " + std::to_string(l.hall_count) + ")");
+      continue;
+    }
+    place(l.hall[static_cast<std::size_t>(i)], where, l.samples_per_frame);
   }
   for (int i = l.hall_count; i < core::kMaxHalls; ++i)
     if (l.hall[static_cast<std::size_t>(i)].present)
-      return problem("signals.hall_" + std::to_string(i), "beyond hall_count " + std::to_string(l.hall_count));
-  if (LayoutProblem p = place(l.accel, "signals.accel", l.samples_per_frame); !p.message.empty()) return p;
-  if (LayoutProblem p = place(l.accel_base, "signals.accel_base", l.samples_per_frame); !p.message.empty()) return p;
+      problem("signals.hall_" + std::to_string(i), "beyond hall_count " + std::to_string(l.hall_count));
+  place(l.accel, "signals.accel", l.samples_per_frame);
+  place(l.accel_base, "signals.accel_base", l.samples_per_frame);
   if (l.sequence.present) {
-    if (l.sequence.is_signed || l.sequence.scale != 1.0 || l.sequence.offset != 0.0)
-      return problem("signals.sequence", "a sequence counter is unsigned with scale 1 and offset 0");
-    if (l.sequence.in_can_id) {
-      if (LayoutProblem p = check_signal(l.sequence, "signals.sequence"); !p.message.empty()) return p;
+    if (l.sequence.is_signed || l.sequence.scale != 1.0 || l.sequence.offset != 0.0) {
+      problem("signals.sequence", "a sequence counter is unsigned with scale 1 and offset 0");
+    } else if (l.sequence.in_can_id) {
+      const LayoutProblem p = check_signal(l.sequence, "signals.sequence");
       const int id_bits = l.extended_id ? 29 : 11;
-      if (l.sequence.start_bit + l.sequence.length > id_bits)
-        return problem("signals.sequence", "bits lie outside the " + std::to_string(id_bits) + "-bit identifier");
-      if ((l.can_id & ~l.id_mask()) != 0)
-        return problem("can_id", "has bits set where the sequence counter goes (in_can_id)");
-    } else if (LayoutProblem p = place(l.sequence, "signals.sequence", 1); !p.message.empty()) {
-      return p;
+      if (!p.message.empty())
+        problems.push_back(p);
+      else if (l.sequence.start_bit + l.sequence.length > id_bits)
+        problem("signals.sequence", "bits lie outside the " + std::to_string(id_bits) + "-bit identifier");
+      else if (l.can_id <= id_limit && (l.can_id & ~l.id_mask()) != 0)
+        problem("can_id", "has bits set where the sequence counter goes (in_can_id)");
+    } else {
+      place(l.sequence, "signals.sequence", 1);
     }
   }
-  if (LayoutProblem p = place(l.node_timestamp, "signals.node_timestamp", 1); !p.message.empty()) return p;
-  if (LayoutProblem p = place(l.temperature, "signals.temperature", 1); !p.message.empty()) return p;
-  return {};
+  place(l.node_timestamp, "signals.node_timestamp", 1);
+  place(l.temperature, "signals.temperature", 1);
+  return problems;
+}
+
+LayoutProblem check_layout(const CanLayout& l) {
+  std::vector<LayoutProblem> all = check_layout_all(l);
+  return all.empty() ? LayoutProblem{} : std::move(all.front());
 }
 
 std::uint64_t get_bits(const std::uint8_t* data, int start_bit, int length, ByteOrder order) {

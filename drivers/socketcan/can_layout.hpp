@@ -23,6 +23,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "core/sample.hpp"
 
@@ -83,6 +84,9 @@ struct LayoutProblem {
 };
 /// First problem found; where/message empty when the layout is valid.
 LayoutProblem check_layout(const CanLayout& layout);
+/// Every problem, in the order check_layout() looks for them (one per signal; the
+/// signals are not placed in a frame that is itself wrong). Empty when valid.
+std::vector<LayoutProblem> check_layout_all(const CanLayout& layout);
 
 /// One CAN / CAN FD frame's identifier and payload.
 struct FrameBytes {

@@ -119,8 +119,7 @@ struct Reader {
       remember(std::string("signals.") + key, sig, key);
     }
     if (errors_before_check_ == errors_->size()) {
-      const LayoutProblem p = check_layout(l);
-      if (!p.message.empty()) at(p.where, root).error(p.message);
+      for (const LayoutProblem& p : check_layout_all(l)) at(p.where, root).error(p.message);
     }
   }
 

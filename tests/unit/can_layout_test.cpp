@@ -321,6 +321,34 @@ TEST(CanLayout, CheckFindsBadLayouts) {
   }
 }
 
+TEST(CanLayout, CheckFindsEveryProblemInOneRun) {
+  CanLayout l;
+  l.frame_length = 8;
+  l.hall_count = 2;
+  for (int i = 0; i < 2; ++i) {
+    l.hall[static_cast<std::size_t>(i)].present = true;
+    l.hall[static_cast<std::size_t>(i)].length = 12;
+  }
+  l.hall[0].start_bit = 0;
+  l.hall[1].start_bit = 6;  // overlaps hall_0
+  l.accel.present = true;
+  l.accel.length = 16;
+  l.accel.start_bit = 60;   // runs out of the 8-byte frame
+  l.can_id = 0x900;         // beyond 11 bits
+  const std::vector<LayoutProblem> all = check_layout_all(l);
+  ASSERT_EQ(all.size(), 3u);
+  EXPECT_EQ(all[0].where, "can_id");
+  EXPECT_EQ(all[1].where, "signals.hall_1");
+  EXPECT_EQ(all[2].where, "signals.accel");
+  EXPECT_EQ(check_layout(l).where, "can_id");  // the first one
+
+  // A wrong frame is reported alone: placing signals in it would only repeat it.
+  l.frame_length = 12;
+  const std::vector<LayoutProblem> frame = check_layout_all(l);
+  ASSERT_EQ(frame.size(), 2u);
+  EXPECT_EQ(frame[1].where, "frame_length");
+}
+
 TEST(CanLayoutFile, ErrorsCarryFileLineColumn) {
   const std::string text =
       "can_id: 0x400\n"
