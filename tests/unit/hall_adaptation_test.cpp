@@ -97,3 +97,65 @@ TEST(HallAdaptation, ADeadSensorIsFlaggedNotAdaptedIntoAgreement) {
 }
 
 }  // namespace
+
+namespace {
+
+/// Standing where one sensor alone is out of saturation on the realistic motor
+/// (0.4321 m), `rise_k` away from the calibration temperature: the common gain
+/// cannot be told from a position there; the node's temperature tells it.
+struct StandstillRun {
+  double rms_m = 0.0, common_gain = 0.0, simulated_common_gain = 0.0;
+};
+
+StandstillRun standstill(double rise_k, bool report) {
+  const auto& r = ve::test::realistic("sim-realistic.yaml");
+  ve::sim::SimConfig cfg = r.axis.driver.sim;
+  cfg.realtime = false;
+  cfg.noise_seed = 31;
+  cfg.profile = ve::sim::MotionProfileConfig{};
+  cfg.profile.kind = ve::sim::MotionProfileConfig::Kind::standstill;
+  cfg.profile.start_m = 0.4321;
+  cfg.profile.min_m = 0.02;
+  cfg.profile.max_m = 0.98;
+  cfg.duration_s = 2.0;
+  cfg.temperature.offset_k = rise_k;
+  cfg.temperature.report = report;
+  ve::sim::SimSource sim(r.axis.motor, cfg);
+  EXPECT_TRUE(sim.ok()) << sim.last_error();
+  ve::core::AxisPipeline pipeline = ve::test::calibrated_pipeline(r, cfg.profile.start_m);
+  ve::core::RawSample s;
+  double sum = 0.0;
+  long n = 0;
+  while (sim.read(s) == ve::drivers::ReadStatus::ok) {
+    const auto& e = pipeline.step(s);
+    if (static_cast<double>(s.t_ns) * 1e-9 < 1.0) continue;
+    const double err = e.position_m - sim.truth()->position_m;
+    sum += err * err;
+    ++n;
+  }
+  StandstillRun out;
+  out.rms_m = std::sqrt(sum / std::max(1L, n));
+  out.common_gain = pipeline.adaptation().common_gain();
+  out.simulated_common_gain =
+      (1.0 + cfg.temperature.magnet_remanence_per_k * rise_k) * (1.0 + cfg.temperature.hall_gain_tc_per_k * rise_k) - 1.0;
+  std::printf("[ figures  ] standstill on one sensor, %+.0f K, temperature %s: position rms %.3f um, common gain %+.4f "
+              "(simulated mean %+.4f)\n",
+              rise_k, report ? "reported" : "not reported", out.rms_m * 1e6, out.common_gain, out.simulated_common_gain);
+  return out;
+}
+
+TEST(HallAdaptation, TheNodesTemperatureGivesTheCommonGainWhereOneSensorCannot) {
+  ASSERT_TRUE(std::isfinite(ve::test::realistic("sim-realistic.yaml").cal.model.temperature_c))
+      << "the calibration run's sensor node reports its temperature";
+  for (double rise : {10.0, -10.0}) {
+    const StandstillRun with = standstill(rise, true);
+    EXPECT_NEAR(with.common_gain, with.simulated_common_gain, 0.003) << rise << " K";
+    EXPECT_LT(with.rms_m, 0.3e-6) << rise << " K";
+    // Without the temperature the one sensor's gain is unknown: the fix is off by
+    // the gain change times that sensor's distance from its zero-field output.
+    const StandstillRun without = standstill(rise, false);
+    EXPECT_GT(without.rms_m, 5.0 * with.rms_m) << rise << " K";
+  }
+}
+
+}  // namespace
