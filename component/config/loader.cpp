@@ -999,6 +999,16 @@ void read_motor(Map m, core::MotorConfig& motor) {
     f.get("hall_drift_cusum", c.hall_drift_cusum, range(0.0, 1e6, ""));
     f.get("hall_gain_limit", c.hall_gain_limit, range(0.001, 0.5, ""));
     f.get("hall_offset_limit_v", c.hall_offset_limit_v, range(0.001, 1.0, "V"));
+    f.get("hall_adaptation_model_std_v", c.hall_adaptation_model_std_v, range(0.0, 0.1, "V"));
+    f.get("hall_common_gain_initial_std", c.hall_common_gain_initial_std, range(1e-6, 0.5, ""));
+    f.get("hall_common_gain_random_walk_per_sqrt_s", c.hall_common_gain_random_walk_per_sqrt_s,
+          range(0.0, 1.0, "1/sqrt(s)"));
+    f.get("hall_common_gain_model_std", c.hall_common_gain_model_std, range(0.0, 0.1, ""));
+    f.get("magnet_remanence_tc_per_k", c.magnet_remanence_tc_per_k, range(-0.01, 0.01, "1/K"));
+    f.get("hall_gain_tc_per_k", c.hall_gain_tc_per_k, range(-0.01, 0.01, "1/K"));
+    f.get("hall_gain_tc_std_per_k", c.hall_gain_tc_std_per_k, range(0.0, 0.01, "1/K"));
+    f.get("hall_offset_tc_std_v_per_k", c.hall_offset_tc_std_v_per_k, range(0.0, 0.01, "V/K"));
+    f.get("temperature_coefficient_rel_std", c.temperature_coefficient_rel_std, range(0.0, 1.0, ""));
   }
 }
 

@@ -883,6 +883,36 @@ TEST(ConfigLoader, ValidAccuracyAndHallAdaptationKeysLoadAndAreChecked) {
   expect_error(b, bad, 4, 27, "filter.valid_confidence_sigma", "out of range [0.5, 10] sigma");
 }
 
+TEST(ConfigLoader, TemperatureAndCommonGainKeysLoadAndAreChecked) {
+  TempDir dir;
+  const auto motor = dir.write("m.yaml",
+                               "motor: a\n"
+                               "filter:\n"
+                               "  magnet_remanence_tc_per_k: -0.0004\n"
+                               "  hall_gain_tc_per_k: -0.0008\n"
+                               "  hall_offset_tc_std_v_per_k: 0.0001\n"
+                               "  hall_common_gain_initial_std: 0.02\n");
+  const auto path = dir.write("machine.yaml", "axes:\n  - {name: x, motor: m.yaml}\n");
+  const LoadResult r = load_machine_file(path);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  const auto& f = r.config.axes.at(0).motor.filter;
+  EXPECT_EQ(f.magnet_remanence_tc_per_k, -0.0004);
+  EXPECT_EQ(f.hall_gain_tc_per_k, -0.0008);
+  EXPECT_EQ(f.hall_offset_tc_std_v_per_k, 0.0001);
+  EXPECT_EQ(f.hall_common_gain_initial_std, 0.02);
+
+  const auto bad = dir.write("bad.yaml",
+                             "motor: b\n"
+                             "filter:\n"
+                             "  magnet_remanence_tc_per_k: -0.12\n"
+                             "  hall_common_gain_initial_std: 0\n");
+  const auto bad_machine = dir.write("bad-machine.yaml", "axes:\n  - {name: x, motor: bad.yaml}\n");
+  const LoadResult b = load_machine_file(bad_machine);
+  ASSERT_EQ(b.errors.size(), 2u) << to_string(b.errors);
+  expect_error(b, bad, 3, 30, "filter.magnet_remanence_tc_per_k", "out of range [-0.01, 0.01] 1/K");
+  expect_error(b, bad, 4, 33, "filter.hall_common_gain_initial_std", "out of range [1e-06, 0.5]");
+}
+
 }  // namespace ve::config
 
 namespace ve::config {
