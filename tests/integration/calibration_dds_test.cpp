@@ -146,7 +146,7 @@ struct Requester {
 constexpr std::uint32_t kAxis = 7;
 
 TEST(CalibrationDds, StartRunsInTheBackgroundWhileTheStateStreamKeepsPublishing) {
-  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const ve::test::RealTimeSlot real_time;  // needs its CPU to judge what it does (speed.hpp)
   TempDir dir;
   const fs::path machine = make_machine(dir.path);
   const int domain = ve::test::dds_domain();

@@ -108,7 +108,7 @@ std::vector<std::string> run_args(const std::string& config, int domain, double 
 }
 
 TEST(DdsInterface, DiagnosticsRoundTripBetweenTwoProcesses) {
-  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const ve::test::RealTimeSlot real_time;  // needs its CPU to judge what it does (speed.hpp)
   const int domain = ve::test::dds_domain();
   ve::test::TempDir dir;
   Probe probe(domain, 20.0);
@@ -244,7 +244,7 @@ TEST(DdsInterface, LateJoiningSubscriberReceivesTheAxisDescription) {
 }
 
 TEST(DdsInterface, ThreeAxesAreThreeInstancesWithIndependentDeadlines) {
-  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const ve::test::RealTimeSlot real_time;  // needs its CPU to judge what it does (speed.hpp)
   const int domain = ve::test::dds_domain();
   ve::test::TempDir dir;
   const double requested_ms = 50.0;

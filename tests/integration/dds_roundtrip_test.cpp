@@ -74,7 +74,7 @@ std::vector<std::string> run_args(const std::string& config, int domain, double 
 }
 
 TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
-  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const ve::test::RealTimeSlot real_time;  // needs its CPU to judge what it does (speed.hpp)
   const int domain = ve::test::dds_domain();
   ve::test::TempDir dir;
   Subscriber sub(domain, 20.0);

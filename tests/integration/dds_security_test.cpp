@@ -411,7 +411,7 @@ std::vector<std::string> run_args(const fs::path& machine, int domain) {
 }
 
 TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
-  const ve::test::RealTimeSlot real_time;  // judges real-time figures (speed.hpp)
+  const ve::test::RealTimeSlot real_time;  // needs its CPU to judge what it does (speed.hpp)
   REQUIRE_PKI();
   const Pki& pki = Pki::get();
   TempDir dir;

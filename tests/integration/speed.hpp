@@ -54,16 +54,17 @@ inline constexpr int kSlowdown = 1;
 /// A wait limit for this build: `t` at real speed, kSlowdown times `t` under a sanitizer.
 constexpr std::chrono::milliseconds patience(std::chrono::milliseconds t) { return t * kSlowdown; }
 
-/// Held by a test, from its start to its end, while it judges real-time figures: such
-/// tests take turns on this host, across test runs (ctest's RUN_SERIAL does it within
-/// one run), so that two suites run at once do not take the CPU from each other's 4 kHz
-/// streams. An exclusive flock(2) on /tmp/ve-test-real-time.lock, waited for; the test's
-/// children inherit it and the kernel frees it when the last of them has ended. Nothing
-/// in builds that do not judge those figures (sanitizers).
+/// Held by a test, from its start to its end, when what it judges depends on getting
+/// the CPU it needs: the real-time figures of the 4 kHz stream (plain build), and the
+/// comparisons between axes or windows of one stream (every build: a stalled axis against
+/// its neighbours, which a starved host stalls too). Such tests take turns on this host,
+/// across test runs and builds (ctest's RUN_SERIAL does it within one run), so that two
+/// suites run at once do not starve each other's streams. An exclusive flock(2) on
+/// /tmp/ve-test-real-time.lock, waited for; the test's children inherit it and the kernel
+/// frees it when the last of them has ended.
 class RealTimeSlot {
  public:
   RealTimeSlot() {
-    if (!kRealTimeFigures) return;
     fd_ = ::open("/tmp/ve-test-real-time.lock", O_RDONLY | O_CREAT, 0666);
     if (fd_ < 0) return;
     ::fchmod(fd_, 0666);
