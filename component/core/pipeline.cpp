@@ -21,6 +21,9 @@ constexpr double kAdaptInnovationSigma = 4.0;
 // A sensor is blamed for a disagreement only if removing it leaves a fix within
 // this many sigmas of the prediction, and removing any other does not.
 constexpr double kBlameAgreementSigma = 4.0;
+// A start position that finds no fix this many samples in a row is given up:
+// search as at a start without a known position.
+constexpr int kLostAfterFailedAcquisitions = 20;
 }  // namespace
 
 AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
@@ -148,22 +151,33 @@ bool AxisPipeline::acquire(const RawSample& sample) {
   const double p = cfg_.motor.magnet_pitch_m;
   double lo, hi;
   bool homed;
-  if (started_) {
+  const HallTable& table = hall_.table();
+  const double x_now = kf_.state()(FusionFilter::kPos);
+  // Lost: the filter's position is off the table (or not a number), or a start
+  // position given from outside (the machine file, a kept position) finds no fix
+  // for kLostAfterFailedAcquisitions samples. Start again as if nothing were known:
+  // the period is not known then (signature homing, when on, finds it again). Near
+  // a position that was good, a failed search is only tried again: a noisy sensor
+  // can make it fail for a while, and a relative position would be worse.
+  const bool lost =
+      started_ ? (!std::isfinite(x_now) || x_now < table.start_m - p || x_now > table.end_m() + p)
+               : acquire_failures_ >= kLostAfterFailedAcquisitions;
+  if (started_ && !lost) {
     // Re-acquisition: search half a pitch either side of where the filter says the
     // carriage is. The period is still known only if that is certain to well
     // within a pitch.
-    const double x = kf_.state()(FusionFilter::kPos);
+    const double x = x_now;
     lo = x - 0.5 * p;
     hi = x + 0.5 * p;
     homed = homed_ && std::sqrt(kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos)) < p / 8.0;
-  } else if (cfg_.start_position_known) {
+  } else if (cfg_.start_position_known && !lost) {
     lo = cfg_.start_position_m - 0.5 * p;
     hi = cfg_.start_position_m + 0.5 * p;
     homed = true;
   } else {
     // Relative: any period will do (on an ideal track they all look alike). Take
     // one in the middle of the table, so that the relative position has room both ways.
-    const HallTable& t = hall_.table();
+    const HallTable& t = table;
     lo = t.start_m + std::floor(0.5 * (t.end_m() - t.start_m) / p) * p;
     hi = lo + p;
     homed = false;
@@ -263,6 +277,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.hall_sensors_used = 0;
   if (!initialised_) {
     initialised_ = acquire(sample);
+    acquire_failures_ = initialised_ ? 0 : acquire_failures_ + 1;
     if (!initialised_) {
       out_.status = status | status::kHallRejected;
       return out_;

@@ -103,6 +103,7 @@ class AxisPipeline {
   std::int64_t period_ns_;
   int rejected_in_row_ = 0;
   int without_fix_in_row_ = 0;
+  int acquire_failures_ = 0;   ///< acquisitions failed in a row
   double accel_var_;
   // Sensor health.
   /// `ambiguous`: the fix disagreed, but more than one sensor's removal would make

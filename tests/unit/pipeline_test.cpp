@@ -158,4 +158,31 @@ TEST(PipelineTiming, BridgesDroppedSamplesByPrediction) {
   EXPECT_TRUE(pipeline.last().status & ve::core::status::kValid);
 }
 
+// A start position the Halls cannot confirm (off the table: a wrong kept position,
+// a mistyped machine file) must not leave the axis searching there for ever: after a
+// few failed acquisitions it starts again as if no position were known (not homed).
+TEST(Pipeline, AStartPositionOffTheTableIsGivenUpNotSearchedForEver) {
+  MotorConfig motor;
+  SimConfig cfg = profile(MotionProfileConfig::Kind::constant_velocity, 0.3, 0.2);
+  cfg.duration_s = 0.2;
+  SimSource sim(motor, cfg);
+  ASSERT_TRUE(sim.ok()) << sim.last_error();
+  ve::core::PipelineConfig pc;
+  pc.motor = motor;
+  pc.start_position_known = true;
+  pc.start_position_m = motor.travel_m + 0.5;  // half a metre beyond the travel
+  AxisPipeline pipeline(pc, ve::core::nominal_hall_table(motor));
+  ve::core::RawSample s;
+  int samples = 0, first_fix = -1;
+  while (sim.read(s) == ve::drivers::ReadStatus::ok) {
+    const auto& e = pipeline.step(s);
+    if (first_fix < 0 && !(e.status & ve::core::status::kHallRejected)) first_fix = samples;
+    ++samples;
+  }
+  ASSERT_GE(first_fix, 0) << "never acquired";
+  EXPECT_LT(first_fix, 100);
+  EXPECT_FALSE(pipeline.last().status & ve::core::status::kHomed) << "the period is not known";
+  EXPECT_TRUE(std::isfinite(pipeline.last().position_m));
+}
+
 }  // namespace
