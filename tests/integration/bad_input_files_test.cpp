@@ -805,7 +805,8 @@ std::vector<Case> whole_file_cases() {
     add("an empty second document", "GOOD\n---\n", "", "a second YAML document");
     add("a scalar", "42\n", "", "expected a mapping");
     add("a list", "- 1\n- 2\n", "", "expected a mapping");
-    add("binary bytes", std::string("\x7f" "ELF\x02\x01\x01\0\0\0\x03\0>\0\x01\0\0\0", 20), "", "");
+    static const char kElfHeader[] = "\x7f" "ELF\x02\x01\x01\0\0\0\x03\0>\0\x01\0\0\0";
+    add("binary bytes", std::string(kElfHeader, sizeof kElfHeader - 1), "", "");
     add("tab indentation", "GOOD\n\tbad: 1\n", "", "malformed YAML");
     add("an unclosed flow sequence", "GOOD\nx: [1, 2\n", "", "malformed YAML");
     add("deep nesting", std::string(20000, '[') + std::string(20000, ']') + "\n", "", "malformed YAML");
