@@ -7,8 +7,9 @@ cd "$(dirname "$0")/.."
 DURATION="${1:-0}"
 DOMAIN="${VE_DEMO_DOMAIN:-42}"
 
-bash deploy/setup.sh
-bash deploy/build.sh
+# Only what building and running need (no test toolchains), and the product without its tests.
+bash deploy/setup.sh --run
+bash deploy/build.sh -DVE_BUILD_TESTS=OFF
 
 BIN=./build/virtual-encoder
 mkdir -p build/demo
