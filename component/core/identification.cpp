@@ -2,8 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <complex>
 #include <cstdio>
 #include <limits>
+
+#include <Eigen/Core>
+#include <unsupported/Eigen/FFT>
 
 #include "fusion_filter.hpp"
 #include "hall_array.hpp"
@@ -104,25 +108,35 @@ void find_vibration(const std::vector<ReferenceSegment>& segments, const std::ve
     r.push_back(z - scale * a - bias);
   }
   if (r.size() < 1000) return;
-  const double n = static_cast<double>(r.size());
-  const double fmax = std::min(cfg.vibration_max_hz, 0.4 / k.ts);
-  std::vector<double> amp;
-  std::vector<double> freq;
-  for (double f = cfg.vibration_min_hz; f <= fmax; f += cfg.vibration_step_hz) {
-    // Goertzel-like direct sums; cos/sin by rotation to keep it cheap.
-    const double w = 2.0 * M_PI * f * k.ts;
-    const double cw = std::cos(w), sw = std::sin(w);
-    double c = 1.0, s = 0.0, sum_c = 0.0, sum_s = 0.0;
-    for (std::size_t i = 0; i < r.size(); ++i) {
-      sum_c += r[i] * c;
-      sum_s += r[i] * s;
-      const double c2 = c * cw - s * sw;
-      s = s * cw + c * sw;
-      c = c2;
-    }
-    amp.push_back(2.0 * std::hypot(sum_c, sum_s) / n);
-    freq.push_back(f);
+  // Hann-windowed spectrum, zero-padded to four times the window: its bins are a
+  // quarter of the resolution apart, so a line between two of them loses little
+  // (a plain scan in steps of twice the resolution could miss a line outright, a
+  // zero of its sinc falling on the grid). The line is then refined by a direct
+  // sum at the exact frequency.
+  const std::size_t n = r.size();
+  double mean = 0.0;
+  for (double x : r) mean += x;
+  mean /= static_cast<double>(n);
+  std::vector<double> w(n);
+  double wsum = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    w[i] = 0.5 - 0.5 * std::cos(2.0 * M_PI * static_cast<double>(i) / static_cast<double>(n - 1));
+    wsum += w[i];
   }
+  std::size_t nfft = 1;
+  while (nfft < 4 * n) nfft <<= 1;
+  std::vector<double> padded(nfft, 0.0);
+  for (std::size_t i = 0; i < n; ++i) padded[i] = w[i] * (r[i] - mean);
+  std::vector<std::complex<double>> spectrum;
+  Eigen::FFT<double> fft;
+  fft.fwd(spectrum, padded);
+  const double df = 1.0 / (static_cast<double>(nfft) * k.ts);
+  const double fmax = std::min(cfg.vibration_max_hz, 0.4 / k.ts);
+  const auto lo = static_cast<std::size_t>(std::ceil(cfg.vibration_min_hz / df));
+  const auto hi = std::min(static_cast<std::size_t>(fmax / df), nfft / 2 - 1);
+  if (hi <= lo + 2) return;
+  std::vector<double> amp(hi - lo + 1);
+  for (std::size_t b = lo; b <= hi; ++b) amp[b - lo] = 2.0 * std::abs(spectrum[b]) / wsum;
   std::size_t best = 0;
   for (std::size_t i = 1; i < amp.size(); ++i)
     if (amp[i] > amp[best]) best = i;
@@ -131,14 +145,44 @@ void find_vibration(const std::vector<ReferenceSegment>& segments, const std::ve
   const double floor = sorted[sorted.size() / 2];
   rep.vibration_floor_mps2 = floor;
   if (amp[best] < cfg.vibration_min_ratio * floor || amp[best] < cfg.vibration_min_mps2) return;
-  double f = freq[best];
-  if (best > 0 && best + 1 < amp.size()) {
-    const double y0 = amp[best - 1], y1 = amp[best], y2 = amp[best + 1];
-    const double curv = y0 - 2.0 * y1 + y2;
-    if (curv < 0.0) f += 0.5 * cfg.vibration_step_hz * (y0 - y2) / curv;
+  // Amplitude of the windowed residual at frequency f, by a direct sum.
+  const auto line = [&](double f) {
+    const double wt = 2.0 * M_PI * f * k.ts;
+    const double cw = std::cos(wt), sw = std::sin(wt);
+    double c = 1.0, s = 0.0, sum_c = 0.0, sum_s = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double x = w[i] * (r[i] - mean);
+      sum_c += x * c;
+      sum_s += x * s;
+      const double c2 = c * cw - s * sw;
+      s = s * cw + c * sw;
+      c = c2;
+    }
+    return 2.0 * std::hypot(sum_c, sum_s) / wsum;
+  };
+  // Golden-section search for the line's peak within a bin either side.
+  const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
+  double a = (static_cast<double>(lo + best) - 1.0) * df, b = (static_cast<double>(lo + best) + 1.0) * df;
+  double x1 = b - phi * (b - a), x2 = a + phi * (b - a);
+  double y1 = line(x1), y2 = line(x2);
+  for (int it = 0; it < 20; ++it) {
+    if (y1 > y2) {
+      b = x2;
+      x2 = x1;
+      y2 = y1;
+      x1 = b - phi * (b - a);
+      y1 = line(x1);
+    } else {
+      a = x1;
+      x1 = x2;
+      y1 = y2;
+      x2 = a + phi * (b - a);
+      y2 = line(x2);
+    }
   }
+  const double f = 0.5 * (a + b);
   rep.vibration_hz = f;
-  rep.vibration_mps2 = amp[best];
+  rep.vibration_mps2 = line(f);
 }
 
 }  // namespace

@@ -48,12 +48,11 @@ struct IdentificationConfig {
   /// the values one magnet period inwards instead of failing (calibration without
   /// a reference: its own scale may end the sweep a few um short of the grid) [m].
   double fill_uncovered_ends_m = 0.0;
-  /// Search for a frame vibration in the accelerometer: frequency range and step
-  /// [Hz], the stretch of recording used [s], and how far above the spectrum's
-  /// median (and above an absolute level) a line must stand to count.
+  /// Search for a frame vibration in the accelerometer: frequency range [Hz], the
+  /// stretch of recording used [s], and how far above the spectrum's median (and
+  /// above an absolute level) a line must stand to count.
   double vibration_min_hz = 5.0;
   double vibration_max_hz = 500.0;
-  double vibration_step_hz = 0.25;
   double vibration_window_s = 8.0;
   double vibration_min_ratio = 8.0;
   double vibration_min_mps2 = 0.005;
