@@ -28,6 +28,19 @@
 #  - Realtime.WithoutPermissionWarnsOncePerSettingAndPublishes: it checks the warning for
 #    a refused mlockall(), and the sanitizer runtimes replace mlockall() by a no-op that
 #    succeeds (shadow memory cannot be locked), so the refusal never happens there.
+# Left out of the TSan tree only (they run in the plain and ASan/UBSan trees):
+#  - PublisherKill.*: its subscribers include the Cyclone DDS reader and Fast DDS's
+#    type-object registry, uninstrumented libraries whose races TSan reports in them;
+#  - the bad-input corpora's file and command-line validation: BadInputFiles.*
+#    (tests/integration/bad_input_files_test.cpp) and, of bad_input_cli_test.cpp,
+#    BadInputCli.*, BadInput/CommandLine.*, BadInput/CommandLineValue.* and
+#    BadInput/Help.*. Each case is a short-lived process that reads a file or its
+#    arguments on one thread and refuses them before any other thread starts, so there
+#    is no interleaving for TSan to judge, while its slowdown made them the longest part
+#    of the stage (BadInputFiles.CalibrationFiles alone 67 s). ASan/UBSan is the
+#    sanitizer that judges that parsing, and the fuzzers cover the same parsers.
+#    BadInput/Signal.* and BadInput/DiskError.* stay: they signal or starve running
+#    subcommands (run, monitor, record, calibrate), whose threads TSan does judge.
 # Every sanitizer report fails the stage, including one from a child process that a test
 # stopped or whose exit code it does not look at: reports go to $BUILD/sanitizer-logs/
 # and any file there fails the run.
@@ -72,10 +85,11 @@ exclude='Realtime\.WithoutPermissionWarnsOncePerSettingAndPublishes'
 # tsan-security.supp added (Fast DDS's cryptography plugin races in functions TSan cannot
 # name; that file says why it names libraries, and why only there).
 security='DdsSecurity\..*'
-# The publisher kill test's subscribers include the Cyclone DDS reader and Fast DDS's
-# type-object registry, uninstrumented libraries whose races TSan reports in them: it
-# runs in the plain and ASan trees only.
-if [ "$kind" = tsan ]; then exclude="$exclude|$security|PublisherKill\..*"; fi
+# TSan only: the publisher kill test and the bad-input corpora (see the header for why).
+if [ "$kind" = tsan ]; then
+  exclude="$exclude|$security|PublisherKill\..*|BadInputFiles\..*|BadInputCli\..*"
+  exclude="$exclude|BadInput/CommandLine\..*|BadInput/CommandLineValue\..*|BadInput/Help\..*"
+fi
 ctest --test-dir "$build" --output-on-failure --timeout 600 --parallel "$(nproc)" -L "$labels" -LE 'vm|interop' \
   -E "^($exclude)\$" "$@" || status=1
 if [ "$kind" = tsan ]; then
