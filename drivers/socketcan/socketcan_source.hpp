@@ -1,8 +1,11 @@
 // Sensor source reading a sensor node over SocketCAN (CAN_RAW, classic CAN or CAN FD).
 //
-// A receive thread owns the socket (non-blocking, poll), filters the layout's ids
-// in the kernel, decodes each frame (can_layout.hpp) and hands the samples to read()
-// through a fixed-size ring (no allocation per sample). Time base:
+// A receive thread owns the socket (non-blocking, poll), decodes each frame
+// (can_layout.hpp) and hands the samples to read() through a fixed-size ring (no
+// allocation per sample). The socket has no kernel id filter: a frame whose id is not
+// the layout's reaches the thread and is counted (foreign id, with the last such id),
+// so a node sending on a wrong id shows in the counters instead of as a silent bus.
+// Time base:
 //  - frames with a node timestamp: t_ns = node time (unwrapped) + k * period;
 //  - else with a sequence counter: t_ns = t0 + (seq - seq0) * period, t0 the kernel
 //    receive timestamp (SO_TIMESTAMPNS, CLOCK_REALTIME) of the first frame minus the
@@ -50,11 +53,15 @@ struct SocketCanCounters {
   std::uint64_t bad_frames = 0;     ///< right id, wrong length or format (dropped): bad_length + bad_format
   std::uint64_t bad_length = 0;     ///< ... payload not the layout's frame_length
   std::uint64_t bad_format = 0;     ///< ... classic/FD mismatch, or neither a classic nor an FD frame
-  /// Frames the kernel filter passed that carry no data of this layout (remote
-  /// requests, ids the filter's mask lets through that the layout does not have)
-  /// (dropped). Frames whose id the kernel filter (layout can_id / id_mask) does not
-  /// pass never reach the process and are not counted anywhere.
+  /// Frames that carry no data of this layout (dropped): foreign_id + remote_frames.
   std::uint64_t foreign_frames = 0;
+  /// ... data frames whose id is not the layout's (can_id / id_mask, standard or
+  /// extended): another node's traffic on a shared bus, or a node on a wrong id.
+  std::uint64_t foreign_id = 0;
+  std::uint64_t remote_frames = 0;  ///< ... remote requests (RTR), any id
+  /// The id of the last foreign-id frame, with CAN_EFF_FLAG for an extended one
+  /// (meaningful when foreign_id > 0).
+  std::uint32_t last_foreign_id = 0;
   std::uint64_t error_frames = 0;   ///< CAN error frames (CAN_ERR_FLAG)
   std::uint64_t bus_warnings = 0;   ///< error frames reporting error-warning (rx or tx)
   std::uint64_t bus_passives = 0;   ///< ... error-passive
@@ -95,8 +102,8 @@ class SocketCanSource final : public drivers::SensorSource {
   BusState bus_state() const { return static_cast<BusState>(bus_state_.load(std::memory_order_relaxed)); }
   /// True while the socket is open and bound (false while the interface is down/gone).
   bool connected() const { return connected_.load(std::memory_order_relaxed); }
-  /// One line with every counter, the dropped frames by reason, and the kernel filter
-  /// (whose rejected frames are not counted), for logs.
+  /// One line with every counter and the dropped frames by reason (foreign ones with
+  /// the last foreign id), for logs.
   std::string stats() const override;
 
   /// The receive thread's step for one frame the socket delivered: `can_id` with the
@@ -110,8 +117,10 @@ class SocketCanSource final : public drivers::SensorSource {
  private:
   struct AtomicCounters {
     std::atomic<std::uint64_t> frames{0}, samples{0}, gaps{0}, lost_samples{0}, late_frames{0}, bad_frames{0},
-        bad_length{0}, bad_format{0}, foreign_frames{0}, error_frames{0}, bus_warnings{0}, bus_passives{0}, bus_offs{0}, other_errors{0},
-        kernel_drops{0}, ring_overruns{0}, reconnects{0}, socket_errors{0};
+        bad_length{0}, bad_format{0}, foreign_frames{0}, foreign_id{0}, remote_frames{0}, error_frames{0},
+        bus_warnings{0}, bus_passives{0}, bus_offs{0}, other_errors{0}, kernel_drops{0}, ring_overruns{0},
+        reconnects{0}, socket_errors{0};
+    std::atomic<std::uint32_t> last_foreign_id{0};
   };
 
   int open_socket(std::string& error);  // fd or -1

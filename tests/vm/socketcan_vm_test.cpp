@@ -7,6 +7,7 @@
 // (cansend, cangen) and the sensor-node emulator as independent peers. It skips, saying
 // why, only when qemu or the kernel package is unavailable.
 #include <gtest/gtest.h>
+#include <linux/can.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -217,10 +218,12 @@ TEST(SocketCanGuest, CansendFramesDecode) {
   }
 }
 
-TEST(SocketCanGuest, CangenNoiseIsFilteredOut) {
+TEST(SocketCanGuest, CangenNoiseIsCountedNotUsed) {
   GUEST_ONLY();
   auto src = open_source("config/can/classic-4hall.yaml", 100);
-  // Noise on ids around the layout's range, extended ids and FD frames with the same low bits.
+  // Noise on ids around the layout's range, extended ids and FD frames with the same low
+  // bits, and remote requests. The socket has no kernel id filter: all of it reaches
+  // the source, none of it is used, and it is counted as foreign (id or remote).
   ASSERT_EQ(sh("cangen vcan0 -g 0 -n 300 -I 3FF -L 8 && cangen vcan0 -g 0 -n 300 -I 500 -L 8 && "
                "cangen vcan0 -g 0 -n 300 -e -I 400 -L 8 && cangen vcan0 -g 0 -n 200 -I 123 && "
                "cangen vcan0 -g 0 -n 100 -I 7FF -R"),
@@ -240,10 +243,36 @@ TEST(SocketCanGuest, CangenNoiseIsFilteredOut) {
   EXPECT_EQ(n, 10);
   const auto c = src->counters();
   EXPECT_EQ(c.frames, 10u);
-  EXPECT_EQ(c.foreign_frames, 0u);  // the kernel filter kept them away
+  EXPECT_EQ(c.kernel_drops, 0u);  // the socket's queue held the whole burst
+  EXPECT_EQ(c.foreign_id, 1100u);
+  EXPECT_EQ(c.remote_frames, 100u);
+  EXPECT_EQ(c.foreign_frames, 1200u);
+  EXPECT_EQ(c.last_foreign_id, 0x123u);  // the last data frame of another id
   EXPECT_EQ(c.bad_frames, 1u);
   EXPECT_EQ(c.gaps, 0u);
   std::printf("after 1200 noise frames: %s\n", src->stats().c_str());
+}
+
+TEST(SocketCanGuest, NodeOnAWrongIdIsCountedAsForeignId) {
+  GUEST_ONLY();
+  // A node configured for another id (0x300 instead of the layout's 0x400-0x4FF): the
+  // bus is not silent to the diagnostics, every frame is counted with its id.
+  auto src = open_source("config/can/classic-4hall.yaml", 100);
+  for (int i = 0; i < 5; ++i) {
+    char cmd[64];
+    std::snprintf(cmd, sizeof cmd, "cansend vcan0 %03X#23614589C7ABFEFF", 0x300 + i);
+    ASSERT_EQ(sh(cmd), 0);
+  }
+  ASSERT_EQ(sh("cansend vcan0 00000405#23614589C7ABFEFF"), 0);  // the right bits as an extended id
+  core::RawSample s;
+  EXPECT_EQ(src->read(s), drivers::ReadStatus::timeout);
+  const auto c = src->counters();
+  EXPECT_EQ(c.frames, 0u);
+  EXPECT_EQ(c.foreign_id, 6u);
+  EXPECT_EQ(c.last_foreign_id, 0x405u | CAN_EFF_FLAG);
+  const std::string line = src->stats();
+  EXPECT_NE(line.find("foreign=6 (id=6 remote=0; last foreign id 0x00000405 (extended))"), std::string::npos) << line;
+  std::printf("node on a wrong id: %s\n", line.c_str());
 }
 
 TEST(SocketCanGuest, ErrorFramesAreClassified) {
