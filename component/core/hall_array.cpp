@@ -19,6 +19,17 @@ HallArray::HallArray(const MotorConfig& motor, HallTable table)
   const double lsb = motor.adc.lsb_v();
   const double var_v2 = motor.hall.noise_v * motor.hall.noise_v + lsb * lsb / 12.0;
   weight_ = 1.0 / var_v2;
+  // Gaussian noise of sigma s before a quantiser of step q leaves the mean reading
+  // off the input by a periodic error whose k-th harmonic has the amplitude
+  // (q / (pi k)) exp(-2 pi^2 k^2 s^2 / q^2); its mean square over the input is the
+  // sum below (q^2 / 12 without noise, nothing once s is half a step).
+  double qv = 0.0;
+  const double s2 = motor.hall.noise_v * motor.hall.noise_v;
+  for (int k = 1; k <= 64; ++k) {
+    const double kk = static_cast<double>(k) * k;
+    qv += std::exp(-4.0 * M_PI * M_PI * kk * s2 / (lsb * lsb)) / (2.0 * M_PI * M_PI * kk);
+  }
+  quantisation_v2_ = lsb * lsb * qv;
   floor_m2_ = motor.filter.hall_position_floor_m * motor.filter.hall_position_floor_m;
 }
 
@@ -91,6 +102,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   double chi2 = with_gain ? e * e * info_c : 0.0;
   int used = 0;
   double hxx = 0.0, hxe = 0.0, hee = info_c;
+  double qxx = 0.0, qxe = 0.0, qee = 0.0;  // the same sums with w^2: the quantisation's share
   for (int i = 0; i < sensors_; ++i) {
     if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
     double t, slope;
@@ -104,6 +116,9 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
       hxx += w * jx * jx;
       hxe += w * jx * u;
       hee += w * u * u;
+      qxx += w * w * jx * jx;
+      qxe += w * w * jx * u;
+      qee += w * w * u * u;
       ++used;
     } else if (std::abs(r) > 0.25) {
       fix.conflict_mask |= 1u << i;  // inconsistent with a saturated sensor
@@ -113,14 +128,19 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   fix.chi2 = chi2;
   fix.sensors_used = used;
   if (used == 0 || hxx <= 0.0 || fix.conflict_mask != 0) return fix;
+  // The position moves by sum_i g_i dy_i for reading errors dy_i, g the position
+  // row of the normal equations' inverse times w_i (jx_i, u_i).
   double var_x = 1.0 / hxx;
+  double gain_sq = qxx / (hxx * hxx);
   if (with_gain) {
     const double det = hxx * hee - hxe * hxe;
     if (!(det > 0.0)) return fix;
     var_x = hee / det;
+    gain_sq = (hee * hee * qxx - 2.0 * hee * hxe * qxe + hxe * hxe * qee) / (det * det);
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
   }
+  fix.quantisation_m2 = quantisation_v2_ * gain_sq;
   fix.ok = true;
   fix.variance_m2 = var_x + floor_m2_;
   return fix;

@@ -29,6 +29,10 @@ struct HallFix {
   /// with, and its posterior variance (0, 0 without).
   double common_gain = 0.0;
   double common_gain_variance = 0.0;
+  /// The part of the fix's error that repeats from sample to sample while the
+  /// carriage stands still: the ADC's quantisation, which the sensors' own noise
+  /// dithers only partly (variance_m2 counts it as white noise) [m^2].
+  double quantisation_m2 = 0.0;
 };
 
 class HallAdaptation;
@@ -67,6 +71,9 @@ class HallArray {
   double hi_v_;        ///< readings at or above are saturated high
   double weight_;      ///< 1 / per-sensor voltage variance [1/V^2]
   double floor_m2_;    ///< variance floor added to every fix [m^2]
+  /// Variance of a reading's quantisation error that the noise does not average
+  /// away (the reading's mean, as a function of the input, still steps) [V^2].
+  double quantisation_v2_;
 };
 
 }  // namespace ve::core

@@ -42,6 +42,11 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   disagreement_decay_ = std::exp(-1.0 / (kDisagreementAverageS * config.motor.sample_rate_hz));
   hold_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
   settle_samples_ = std::max(1, static_cast<int>(std::lround(kAdaptSettleS * config.motor.sample_rate_hz)));
+  {
+    // A sensor's slope, root mean square over a magnet period: 2 pi A / (pitch sqrt 2).
+    const double slope = 2.0 * M_PI * config.motor.hall.amplitude_v / (config.motor.magnet_pitch_m * std::sqrt(2.0));
+    quantisation_travel_m_ = config.motor.adc.lsb_v() / std::max(slope, 1e-9);
+  }
 }
 
 HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, double common_mode_v,
@@ -344,6 +349,13 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
         // ... and see whether a faulty sensor agrees again.
         if (faulty_mask_) readmission_step(sample, guess, common_mode);
       }
+      // The quantisation error repeats while the readings stay on their ADC steps;
+      // the filter averages it over as many steps as the carriage crosses within
+      // the fixes it averages (the ratio of a fix's variance to its own).
+      const double p_pos = kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos);
+      const double averaged_s = kf_.period_s() * std::max(1.0, fix_var / std::max(p_pos, 1e-30));
+      const double steps = std::abs(xp(FusionFilter::kVel)) * averaged_s / quantisation_travel_m_;
+      quantisation_var_m2_ = fix.quantisation_m2 / (1.0 + steps);
       if (applied) {
         rejected_in_row_ = 0;
       } else if (++rejected_in_row_ >= cfg_.motor.filter.hall_rejections_before_reset) {
@@ -391,7 +403,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // second): a sensor is not blamed while the array has just disagreed without one.
   disagreement_hold_m2_ = std::max(disagreement_seen_m2_, disagreement_hold_m2_ * hold_decay_);
   disagreement_seen_m2_ = 0.0;
-  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_);
+  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_);
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance());
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 

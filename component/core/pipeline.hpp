@@ -124,6 +124,11 @@ class AxisPipeline {
   int settle_samples_ = 1;   ///< ... before the Hall adaptation learns
   double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
   double disagreement_var_m2_ = 0.0;   ///< its recent average, added to the published sigma
+  /// The last fix's quantisation error that the filter cannot average away at
+  /// this speed (HallFix::quantisation_m2), added to the published sigma [m^2].
+  double quantisation_var_m2_ = 0.0;
+  /// Travel over which a sensor's reading crosses one ADC step, on average [m].
+  double quantisation_travel_m_ = 0.0;
   double disagreement_hold_m2_ = 0.0;  ///< its recent largest, widening the blame test
   double disagreement_decay_ = 1.0;
   double hold_decay_ = 1.0;
