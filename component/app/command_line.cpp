@@ -129,6 +129,41 @@ void add_log_level(CLI::App* app, std::string& level) {
 
 }  // namespace
 
+const char* const kMonitorTableLegend =
+    "Table (one row per axis, from its last sample received):\n"
+    "  axis          the axis' name and, in parentheses, its DDS id ('id N' until its description arrives)\n"
+    "  position[mm]  position;  vel[mm/s]  velocity\n"
+    "  sx[um]        one-sigma uncertainty of the position the encoder publishes;  sv[mm/s]  the same of the velocity\n"
+    "  rate[Hz]      samples received from the axis in the last second\n"
+    "  dl-miss(r/o)  deadline misses: r requested, seen by this monitor (no sample within --deadline-ms) /\n"
+    "                o offered, reported by the encoder since it started ('-' until its diagnostics arrive)\n"
+    "  gaps          samples lost on the way, counted from gaps in the sequence numbers\n"
+    "  innov         RMS of the normalised Hall innovation over the encoder's last diagnostics period (0.1 s):\n"
+    "                about 1 when the Hall sensors and the filter agree, well above 1 when they do not\n"
+    "  bias[m/s2]    the accelerometer bias the filter estimates now\n"
+    "  step[us]      longest estimator + publish time of one sample in the last diagnostics period\n"
+    "                (innov, bias and step come from the encoder's diagnostics, 10 a second; '-' until the first)\n"
+    "  status        the status word's flags, '|' between them, '-' for none:\n"
+    "                VALID position and velocity may be used; CAL a calibration table is in use;\n"
+    "                HOMED the position is absolute on the travel; DEGRADED fewer sensors than configured;\n"
+    "                FAULT a sensor is flagged; OUT_OF_TRAVEL outside the calibrated travel;\n"
+    "                HALL_REJ this sample's Hall position was rejected (not used); ACC_FAULT accelerometer\n"
+    "                missing or saturated; H0..H7 that Hall sensor is flagged faulty\n";
+
+const char* const kMonitorCsvLegend =
+    "--csv columns (one row per sample received, after a header row):\n"
+    "  axis_id                the axis' DDS id\n"
+    "  sequence               +1 per published sample of the axis\n"
+    "  sample_time_ns         the sensor sample's instant, on the source's clock [ns]\n"
+    "  status                 the status word, hex: bit 0 VALID, 1 CAL, 2 HOMED, 3 DEGRADED, 4 FAULT,\n"
+    "                         5 OUT_OF_TRAVEL, 6 HALL_REJ, 7 ACC_FAULT, 16+n Hall sensor n flagged\n"
+    "  position_counts        encoder-equivalent position [counts]\n"
+    "  velocity_counts_per_s  encoder-equivalent velocity [counts/s]\n"
+    "  position_m, velocity_mps, acceleration_mps2               the estimate in SI units\n"
+    "  position_std_m, velocity_std_mps, acceleration_std_mps2   their one-sigma uncertainties\n"
+    "  source_time_ns         host CLOCK_REALTIME when the driver handed the sample over [ns]\n"
+    "  publish_time_ns        host CLOCK_REALTIME just before the encoder wrote it [ns]\n";
+
 const char* subcommand_name(Subcommand c) {
   switch (c) {
     case Subcommand::run: return "run";
@@ -255,7 +290,10 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
       ->check(number(0, 3600000, "ms"))
       ->type_name("MS")
       ->capture_default_str();
-  mon_cmd->footer(env_footer(kDdsEnvironment));
+  mon_cmd->footer(std::string(kMonitorTableLegend) + "\n" + kMonitorCsvLegend +
+                  "\nOn a terminal the table is redrawn 4 times a second, otherwise printed once a second. A closed\n"
+                  "stdout (`monitor --csv | head`) ends the monitor quietly with exit code 0.\n" +
+                  env_footer(kDdsEnvironment));
 
   // ---- record
   RecordOptions& rec = cl.record;

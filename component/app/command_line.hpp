@@ -43,4 +43,10 @@ CommandLine parse_command_line(int argc, const char* const* argv);
 /// The name a subcommand has on the command line ("" for none).
 const char* subcommand_name(Subcommand c);
 
+/// What every column and status flag of `monitor`'s table means: in `monitor --help`, and
+/// printed by `monitor` above its first table (on a terminal, below every redraw).
+extern const char* const kMonitorTableLegend;
+/// What every column of `monitor --csv` means (in `monitor --help`).
+extern const char* const kMonitorCsvLegend;
+
 }  // namespace ve::app

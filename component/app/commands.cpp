@@ -7,11 +7,14 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <chrono>
 #include <climits>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <thread>
 #include <vector>
@@ -21,6 +24,7 @@
 #include "axis.hpp"
 #include "calibration_log.hpp"
 #include "calibration_service.hpp"
+#include "command_line.hpp"
 #include "config/atomic_file.hpp"
 #include "config/calibration_file.hpp"
 #include "config/kept_position.hpp"
@@ -830,20 +834,31 @@ int monitor_command(const MonitorOptions& options) {
     return 1;
   }
   const double deadline_ms = options.deadline_ms > 0 ? options.deadline_ms : 2.0 * machine.dds.deadline_ms;
+  // A reader that stops reading (`monitor --csv | head`) ends the monitor quietly: no
+  // death by SIGPIPE, the failed write is seen and the loop stops with exit code 0.
+  std::signal(SIGPIPE, SIG_IGN);
+  std::atomic<int> write_errno{0};  // the first failed write to stdout, 0 while none
+  auto note_write = [&write_errno](int rc) {
+    if (rc < 0) {
+      int expected = 0;
+      write_errno.compare_exchange_strong(expected, errno != 0 ? errno : EIO);
+    }
+  };
   std::mutex out_mutex;
   StateReader::Callback csv_row;
   if (options.csv) {
     std::printf("axis_id,sequence,sample_time_ns,status,position_counts,velocity_counts_per_s,position_m,"
                 "velocity_mps,acceleration_mps2,position_std_m,velocity_std_mps,acceleration_std_mps2,source_time_ns,"
                 "publish_time_ns\n");
-    csv_row = [&out_mutex](const ve::dds::EncoderState& s) {
+    csv_row = [&out_mutex, &note_write, &write_errno](const ve::dds::EncoderState& s) {
       std::lock_guard<std::mutex> lock(out_mutex);
-      std::printf("%u,%llu,%lld,0x%08x,%lld,%lld,%.9f,%.6f,%.4f,%.3e,%.3e,%.3e,%lld,%lld\n", s.axis_id(),
+      if (write_errno.load() != 0) return;
+      note_write(std::printf("%u,%llu,%lld,0x%08x,%lld,%lld,%.9f,%.6f,%.4f,%.3e,%.3e,%.3e,%lld,%lld\n", s.axis_id(),
                   static_cast<unsigned long long>(s.sequence_number()), static_cast<long long>(s.sample_time_ns()),
                   s.status(), static_cast<long long>(s.position_counts()),
                   static_cast<long long>(s.velocity_counts_per_s()), s.position_m(), s.velocity_mps(),
                   s.acceleration_mps2(), s.position_std_m(), s.velocity_std_mps(), s.acceleration_std_mps2(),
-                  static_cast<long long>(s.source_time_ns()), static_cast<long long>(s.publish_time_ns()));
+                  static_cast<long long>(s.source_time_ns()), static_cast<long long>(s.publish_time_ns())));
     };
   }
   int exit_code = 0;
@@ -854,9 +869,19 @@ int monitor_command(const MonitorOptions& options) {
       return 1;
     }
     const bool tty = isatty(STDOUT_FILENO) && !options.csv;
-    if (!options.csv)
+    if (!options.csv) {
       std::printf("monitoring DDS domain %d, topic '%s' (requested deadline %.0f ms); Ctrl-C to stop\n",
                   dds_options.domain, kStateTopic, deadline_ms);
+      // A log gets the legend once, at the top; a terminal below every redraw.
+      if (!tty) std::printf("%s\n", kMonitorTableLegend);
+    }
+    // Whether stdout still takes what is written: false once a write or a flush failed.
+    auto output_open = [&] {
+      std::lock_guard<std::mutex> lock(out_mutex);
+      note_write(std::fflush(stdout) == 0 ? 0 : -1);
+      if (write_errno.load() == 0 && std::ferror(stdout)) note_write(-1);
+      return write_errno.load() == 0;
+    };
     const auto start = std::chrono::steady_clock::now();
     auto last_print = start - std::chrono::hours(1);
     // Matching is logged (stderr), so that a monitor that receives nothing says
@@ -878,8 +903,7 @@ int monitor_command(const MonitorOptions& options) {
       log_matching();
       if (stop) break;
       if (options.csv) {
-        std::lock_guard<std::mutex> lock(out_mutex);
-        std::fflush(stdout);
+        if (!output_open()) break;
         continue;
       }
       const auto now = std::chrono::steady_clock::now();
@@ -917,9 +941,19 @@ int monitor_command(const MonitorOptions& options) {
                     core::status_to_string(a.last.status()).c_str());
       }
       if (axes.empty()) std::printf("(no encoder on domain %d yet: is `virtual-encoder run` up?)\n", dds_options.domain);
-      std::fflush(stdout);
+      if (tty) std::printf("\n%s", kMonitorTableLegend);
+      if (!output_open()) break;
     }
-    if (!options.csv)
+    if (write_errno.load() != 0) {
+      // Not a failure when the reader has all it wanted; anything else is.
+      const int e = write_errno.load();
+      if (e == EPIPE) {
+        spdlog::debug("monitor: stdout closed by its reader: stopping");
+      } else {
+        spdlog::error("monitor: cannot write to stdout: {}", std::strerror(e));
+        exit_code = 1;
+      }
+    } else if (!options.csv)
       std::printf("received %llu samples; requested deadline missed %llu times (%llu early report(s) of Fast DDS "
                   "not counted)\n",
                   static_cast<unsigned long long>(reader.total_received()),
