@@ -636,26 +636,53 @@ int run_command(const RunOptions& options) {
 
 // ------------------------------------------------------------------- check
 
+/// Prints `text`, one problem per line, and returns how many lines it had.
+static std::size_t print_problems(const std::string& text, const std::string& prefix = "") {
+  std::size_t n = 0;
+  std::size_t at = 0;
+  while (at < text.size()) {
+    std::size_t end = text.find('\n', at);
+    if (end == std::string::npos) end = text.size();
+    if (end > at) {
+      std::printf("%s%.*s\n", prefix.c_str(), static_cast<int>(end - at), text.c_str() + at);
+      ++n;
+    }
+    at = end + 1;
+  }
+  return n;
+}
+
 int check_command(const CheckOptions& options) {
   auto result = options.config.empty() ? config::load_embedded_default() : config::load_machine_file(options.config);
   std::size_t problems = result.errors.size();
   for (const auto& e : result.errors) std::printf("%s\n", e.to_string().c_str());
   if (result.ok()) {
+    // Every problem of every axis is printed and counted: each of its calibration file's,
+    // and its driver's as well when the calibration has problems too.
     for (const auto& axis : result.config.axes) {
       core::Calibration cal;
       bool calibrated = false;
       std::string error;
-      if (!load_axis_calibration(axis, cal, calibrated, error)) {
-        std::printf("%s", error.c_str());
-        ++problems;
-        continue;
+      const bool cal_ok = load_axis_calibration(axis, cal, calibrated, error);
+      std::size_t axis_problems = 0;
+      if (!cal_ok) {
+        const std::size_t n = print_problems(error);
+        axis_problems += n > 0 ? n : 1;
+        if (n == 0) std::printf("%s: axis '%s': calibration refused\n", result.config.source.c_str(), axis.name.c_str());
       }
+      error.clear();
       auto source = make_source(axis, SourceTiming::as_fast_as_possible, error);
       if (!source) {
-        std::printf("%s: axis '%s': %s\n", result.config.source.c_str(), axis.name.c_str(), error.c_str());
-        ++problems;
-        continue;
+        // The driver's message names the axis itself, or not.
+        const std::string axis_prefix = "axis '" + axis.name + "': ";
+        const std::string prefix =
+            result.config.source + ": " + (error.rfind(axis_prefix, 0) == 0 ? std::string() : axis_prefix);
+        const std::size_t n = print_problems(error, prefix);
+        axis_problems += n > 0 ? n : 1;
+        if (n == 0) std::printf("%sthe driver cannot start\n", prefix.c_str());
       }
+      problems += axis_problems;
+      if (axis_problems > 0) continue;
       std::printf("axis '%s' (id %u): motor %s, %d Halls, %.0f Hz, %s, %s\n", axis.name.c_str(), axis.id,
                   axis.motor.name.c_str(), axis.motor.hall.count, axis.motor.sample_rate_hz, source->describe().c_str(),
                   calibrated ? ("calibration " + cal.info.id + " (" + cal.info.method + ", " + cal.info.created_utc + ")").c_str()
