@@ -2,10 +2,21 @@
 # The front door: set up, build, then run the virtual encoder on the built-in
 # simulated motor and watch it live from a second process over DDS.
 #   deploy/demo.sh [SECONDS]     (default: until Ctrl-C)
+# VE_DEMO_DOMAIN=N (0..232, default 42) is the DDS domain the demo's two processes use.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DURATION="${1:-0}"
 DOMAIN="${VE_DEMO_DOMAIN:-42}"
+# Refused before the set-up and the build, not minutes later by the program.
+if ! [[ "$DOMAIN" =~ ^[0-9]{1,3}$ ]] || [ "$((10#$DOMAIN))" -gt 232 ]; then
+  echo "demo: VE_DEMO_DOMAIN='$DOMAIN' is not a DDS domain id: expected a whole number 0..232" >&2
+  exit 2
+fi
+DOMAIN="$((10#$DOMAIN))"
+if ! [[ "$DURATION" =~ ^[0-9]+([.][0-9]+)?$ ]]; then
+  echo "demo: '$DURATION' is not a number of seconds (usage: deploy/demo.sh [SECONDS]; 0 or none: until Ctrl-C)" >&2
+  exit 2
+fi
 
 # Only what building and running need (no test toolchains), and the product without its tests.
 bash deploy/setup.sh --run
