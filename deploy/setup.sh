@@ -12,8 +12,8 @@ RUN_PACKAGES=(
   # Fast DDS; fastddsgen generates the DDS types at build time and is a Java program
   libfastrtps-dev libfastcdr-dev fastddsgen default-jre-headless
   libeigen3-dev libyaml-cpp-dev libcli11-dev libspdlog-dev libfmt-dev
-  # systemd readiness and watchdog (sd_notify)
-  libsystemd-dev
+  # systemd readiness and watchdog (sd_notify); .deb packaging (dpkg-shlibdeps; build-essential needs it anyway)
+  libsystemd-dev dpkg-dev
 )
 
 # Only the tests, the fuzzers, the sanitizer runs and the benchmarks need these.
@@ -21,8 +21,8 @@ TEST_PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   # `fastdds shm clean` between test runs
   fastdds-tools
-  # .deb packaging (dpkg-shlibdeps); systemd-analyze for the unit's test
-  dpkg-dev systemd
+  # systemd-analyze for the unit's tests
+  systemd
   # fuzzing (libFuzzer) needs clang and its runtime
   clang libclang-rt-14-dev
   # a second DDS implementation, for the interoperability test
