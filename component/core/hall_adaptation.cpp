@@ -40,8 +40,9 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   temperature_alpha_ = 1.0 - std::exp(-ts_s / kTemperatureAverageS);
 }
 
-void HallAdaptation::update_common(double relative_change, double variance) {
+void HallAdaptation::update_common(double relative_change, double variance, double share) {
   if (!enabled_ || !std::isfinite(relative_change) || !(variance > 0.0)) return;
+  share = std::clamp(share, 0.0, 1.0);
   // The fix combined its sensors (information I) with the prior p_common_. Their
   // model is not exact (the table's own residual repeats along the travel), so
   // one fix says no more than model_var_common_: the update with the sensors'
@@ -49,7 +50,7 @@ void HallAdaptation::update_common(double relative_change, double variance) {
   // the change is relative_change (1 + p I) / (1 + p I + m I), the variance
   // p (1 + m I) / (1 + p I + m I).
   const double p = p_common_, m = model_var_common_;
-  const double info = std::max(0.0, 1.0 / variance - 1.0 / p);
+  const double info = share * std::max(0.0, 1.0 / variance - 1.0 / p);
   const double den = 1.0 + p * info + m * info;
   const double change = relative_change * (1.0 + p * info) / den;
   const double g = 1.0 + common_gain_;
@@ -71,7 +72,9 @@ void HallAdaptation::temperature(double delta_k) {
     const double sd = tc_rel_std_ * std::abs(g);
     const double sd_reading = common_tc_per_k_ * kReadingStdK;
     p_common_ = std::min(p0_gg_ + sd * sd + sd_reading * sd_reading, limit2);
-    const double rise2 = delta_k * delta_k + kReadingStdK * kReadingStdK;
+    // Each sensor's spread for this rise; a reading's own error (kReadingStdK) moves
+    // a sensor by far less than the start-up prior already allows for.
+    const double rise2 = delta_k * delta_k;
     for (int i = 0; i < sensors_; ++i) {
       const auto k = static_cast<std::size_t>(i);
       p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * rise2, limit2);
@@ -121,8 +124,9 @@ double HallAdaptation::residual(const RawSample& raw, const HallTable& table, in
 
 
 void HallAdaptation::update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
-                            std::uint32_t mask, std::uint32_t learn_only_mask) {
+                            std::uint32_t mask, std::uint32_t learn_only_mask, double share) {
   if (!enabled_) return;
+  share_ = std::clamp(share, 1e-9, 1.0);
   p_common_ = std::min(p_common_ + q_common_, p0_common_);
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
@@ -193,10 +197,12 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
     // Innovation variance with H = [u, 1].
     const double ph_g = p_gg_[k] * u[k] + p_gd_[k];
     const double ph_d = p_gd_[k] * u[k] + p_dd_[k];
-    const double s = u[k] * ph_g + ph_d + rv;
+    const double s_cusum = u[k] * ph_g + ph_d + rv;
+    // The update itself takes the sample as worth share_ of a new one.
+    const double s = s_cusum + rv * (1.0 / share_ - 1.0);
     // A change faster than the random walk: the residual keeps one sign. Re-open.
     Cusum& c = cusum_[k];
-    const double z = res / std::sqrt(s);
+    const double z = res / std::sqrt(s_cusum);
     c.up = std::max(0.0, c.up + z - 1.0);
     c.down = std::max(0.0, c.down - z - 1.0);
     if (reopen_threshold_ > 0.0 && (c.up > reopen_threshold_ || c.down > reopen_threshold_)) {

@@ -51,7 +51,9 @@ class HallAdaptation {
   /// Takes in a Hall fix's estimate of the common gain: `relative_change` of the
   /// gain the correction assumed, known to variance `variance` (the fix's
   /// posterior, which already holds common_gain_variance() as its prior).
-  void update_common(double relative_change, double variance);
+  /// `share` (0..1) is how much of a new fix's information this one carries: fixes
+  /// taken where the last ones were repeat their errors (see update()).
+  void update_common(double relative_change, double variance, double share = 1.0);
 
   /// The motor is `delta_k` warmer than at calibration (reported by the sensor
   /// node). The first call sets what the data sheet's coefficients predict: the
@@ -67,8 +69,13 @@ class HallAdaptation {
   /// an error of the prediction is not learnt as drift; at least two sensors out
   /// of saturation are needed. Sensors in `learn_only_mask` (judged faulty) learn
   /// from the others but take no part in what the others learn.
+  /// `share` (0..1) is how much new information the sample carries: the sensors'
+  /// residuals repeat while the carriage stands (the others' drift, taken out as a
+  /// shift, leaves its mark in each), so samples taken where the last ones were
+  /// count for this much of one taken at a new place, and at standstill the
+  /// uncertainty stays what it was instead of shrinking on a repeated error.
   void update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v, std::uint32_t mask,
-              std::uint32_t learn_only_mask = 0);
+              std::uint32_t learn_only_mask = 0, double share = 1.0);
 
   /// Residual of sensor i's raw reading against the adapted model at x, and the
   /// residual's standard deviation [V].
@@ -83,6 +90,15 @@ class HallAdaptation {
     const auto k = static_cast<std::size_t>(i);
     const double u = table_v - mid_v_;
     return std::max(0.0, u * u * p_gg_[k] + 2.0 * u * p_gd_[k] + p_dd_[k]);
+  }
+  /// What reading_variance() holds beyond the start-up prior (which stands for the
+  /// small drift any calibration has had since, already in the published sigma's
+  /// systematic term): the widening a known temperature change or a re-opening
+  /// brought, not learnt yet [V^2].
+  double drift_variance(int i, double table_v) const {
+    if (!enabled_) return 0.0;
+    const double u = table_v - mid_v_;
+    return std::max(0.0, reading_variance(i, table_v) - (u * u * p0_gg_ + p0_dd_));
   }
   /// Sensor i's own gain change (on top of the common one), and its total change.
   double gain(int i) const { return gamma_[static_cast<std::size_t>(i)]; }
@@ -118,6 +134,7 @@ class HallAdaptation {
   double q_common_, p0_common_;       ///< the common gain's random walk and start-up variance
   double model_var_common_;           ///< the least variance one fix's common gain can have
   double model_var_v2_;               ///< the least variance one sample's residual has [V^2]
+  double share_ = 1.0;                ///< the current sample's share of new information (update())
   double common_tc_per_k_;            ///< remanence + mean Hall sensitivity coefficient [1/K]
   double tc_rel_std_, gain_tc_std_, offset_tc_std_v_;
   static constexpr double kReadingStdK = 0.3;         ///< one reading of the node: noise and resolution [K]

@@ -103,6 +103,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   int used = 0;
   double hxx = 0.0, hxe = 0.0, hee = info_c;
   double qxx = 0.0, qxe = 0.0, qee = 0.0;  // the same sums with w^2: the quantisation's share
+  double axx = 0.0, axe = 0.0, aee = 0.0;  // ... and with w^2 times the adaptation's variance
   for (int i = 0; i < sensors_; ++i) {
     if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
     double t, slope;
@@ -119,6 +120,12 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
       qxx += w * w * jx * jx;
       qxe += w * w * jx * u;
       qee += w * w * u * u;
+      if (adaptation) {
+        const double a = adaptation->drift_variance(i, t);
+        axx += a * w * w * jx * jx;
+        axe += a * w * w * jx * u;
+        aee += a * w * w * u * u;
+      }
       ++used;
     } else if (std::abs(r) > 0.25) {
       fix.conflict_mask |= 1u << i;  // inconsistent with a saturated sensor
@@ -132,15 +139,18 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // row of the normal equations' inverse times w_i (jx_i, u_i).
   double var_x = 1.0 / hxx;
   double gain_sq = qxx / (hxx * hxx);
+  double drift = axx / (hxx * hxx);
   if (with_gain) {
     const double det = hxx * hee - hxe * hxe;
     if (!(det > 0.0)) return fix;
     var_x = hee / det;
     gain_sq = (hee * hee * qxx - 2.0 * hee * hxe * qxe + hxe * hxe * qee) / (det * det);
+    drift = (hee * hee * axx - 2.0 * hee * hxe * axe + hxe * hxe * aee) / (det * det);
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
   }
   fix.quantisation_m2 = quantisation_v2_ * gain_sq;
+  fix.drift_m2 = std::max(0.0, drift);
   fix.ok = true;
   fix.variance_m2 = var_x + floor_m2_;
   return fix;

@@ -33,6 +33,10 @@ struct HallFix {
   /// carriage stands still: the ADC's quantisation, which the sensors' own noise
   /// dithers only partly (variance_m2 counts it as white noise) [m^2].
   double quantisation_m2 = 0.0;
+  /// Likewise what the adaptation is still unsure of in the sensors' gains and
+  /// offsets beyond its start-up prior (HallAdaptation::drift_variance): it repeats
+  /// until the carriage has moved a good part of a magnet period [m^2].
+  double drift_m2 = 0.0;
 };
 
 class HallAdaptation;

@@ -10,6 +10,8 @@
 namespace ve::core {
 
 namespace {
+// Travel after which a sample counts as taken at a new place, for the adaptation.
+constexpr double kNewPlaceShareOfPitch = 1.0 / 200.0;
 // A disagreement among the Hall sensors is averaged over this long for the
 // published sigma, and held (decaying) this long for the blame test.
 constexpr double kDisagreementAverageS = 0.25;
@@ -343,9 +345,15 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix_var, wide_gate, applied);
       if (learn) {
         // The gain every sensor shares, as this fix saw it; then each sensor's own.
-        adapt_.update_common(fix.common_gain, fix.common_gain_variance);
+        // A sample taken where the last one was repeats its errors: it carries new
+        // information in proportion to the travel since (a 200th of a magnet
+        // period counts as a new place).
+        const double share = std::min(1.0, std::abs(xp(FusionFilter::kVel)) * kf_.period_s() /
+                                               (kNewPlaceShareOfPitch * cfg_.motor.magnet_pitch_m));
+        adapt_.update_common(fix.common_gain, fix.common_gain_variance, share);
         // An outlier nobody can be blamed for (a drift) is exactly what must learn.
-        adapt_.update(sample, hall_.table(), guess, common_mode, use & ~(ambiguous ? 0u : outlier), faulty_mask_);
+        adapt_.update(sample, hall_.table(), guess, common_mode, use & ~(ambiguous ? 0u : outlier), faulty_mask_,
+                      share);
         // ... and see whether a faulty sensor agrees again.
         if (faulty_mask_) readmission_step(sample, guess, common_mode);
       }
@@ -356,6 +364,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       const double averaged_s = kf_.period_s() * std::max(1.0, fix_var / std::max(p_pos, 1e-30));
       const double steps = std::abs(xp(FusionFilter::kVel)) * averaged_s / quantisation_travel_m_;
       quantisation_var_m2_ = fix.quantisation_m2 / (1.0 + steps);
+      // A gain or offset error moves the fixes by a pattern that repeats with the
+      // magnet period: it averages out over a good part of one.
+      const double quarters = std::abs(xp(FusionFilter::kVel)) * averaged_s / (0.25 * cfg_.motor.magnet_pitch_m);
+      drift_var_m2_ = fix.drift_m2 / (1.0 + quarters);
       if (applied) {
         rejected_in_row_ = 0;
       } else if (++rejected_in_row_ >= cfg_.motor.filter.hall_rejections_before_reset) {
@@ -403,7 +415,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // second): a sensor is not blamed while the array has just disagreed without one.
   disagreement_hold_m2_ = std::max(disagreement_seen_m2_, disagreement_hold_m2_ * hold_decay_);
   disagreement_seen_m2_ = 0.0;
-  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_);
+  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + drift_var_m2_);
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance());
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 

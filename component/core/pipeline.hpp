@@ -127,6 +127,8 @@ class AxisPipeline {
   /// The last fix's quantisation error that the filter cannot average away at
   /// this speed (HallFix::quantisation_m2), added to the published sigma [m^2].
   double quantisation_var_m2_ = 0.0;
+  /// Likewise the sensors' gain and offset uncertainty (HallFix::drift_m2) [m^2].
+  double drift_var_m2_ = 0.0;
   /// Travel over which a sensor's reading crosses one ADC step, on average [m].
   double quantisation_travel_m_ = 0.0;
   double disagreement_hold_m2_ = 0.0;  ///< its recent largest, widening the blame test
