@@ -41,6 +41,7 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   all_halls_mask_ = (1u << n) - 1u;
   min_healthy_ = config.motor.filter.min_healthy_halls > 0 ? config.motor.filter.min_healthy_halls : std::max(1, n - 1);
   readmit_samples_ = std::max(1, static_cast<int>(std::lround(config.motor.filter.sensor_readmit_s * config.motor.sample_rate_hz)));
+  blame_wait_samples_ = readmit_samples_;
   disagreement_decay_ = std::exp(-1.0 / (kDisagreementAverageS * config.motor.sample_rate_hz));
   hold_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
   settle_samples_ = std::max(1, static_cast<int>(std::lround(kAdaptSettleS * config.motor.sample_rate_hz)));
@@ -314,7 +315,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     // Blame waits until the adaptation has had a moment after a start: a motor
     // warmer or colder than at calibration makes its most drifted sensor look like
     // the odd one out at first. (The fix itself leaves an outlier out all along.)
-    if (judge && !ambiguous && settled_samples_ >= readmit_samples_)
+    if (judge && !ambiguous && settled_samples_ >= blame_wait_samples_)
       update_hall_health(use & sample.hall_valid_mask, outlier);
     // Learn gains and offsets against the prediction (made before this fix, so the
     // fix's own noise is not fed back) once the filter has settled after a start

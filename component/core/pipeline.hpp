@@ -120,6 +120,9 @@ class AxisPipeline {
   double readmit_lo_m_[kMaxHalls] = {};
   double readmit_hi_m_[kMaxHalls] = {};
   int readmit_samples_ = 1;
+  /// Samples after a start before a sensor may be blamed (the adaptation's first
+  /// moment); as long as readmission takes, by the same reasoning.
+  int blame_wait_samples_ = 1;
   int settled_samples_ = 0;  ///< samples since the filter last (re)acquired
   int settle_samples_ = 1;   ///< ... before the Hall adaptation learns
   double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
