@@ -14,6 +14,36 @@
 
 namespace {
 
+/// The realistic machine's simulator, `rise_k` off its calibration temperature.
+ve::sim::SimConfig sim_config(const ve::test::Realistic& r, double rise_k) {
+  ve::sim::SimConfig cfg = r.axis.driver.sim;  // the multisine of the machine file
+  cfg.realtime = false;
+  cfg.noise_seed = 31;
+  cfg.temperature.offset_k = rise_k;
+  return cfg;
+}
+
+/// Runs the pipeline over the whole simulation: RMS position error from `from_s` on.
+double late_position_rms_m(ve::sim::SimSource& sim, ve::core::AxisPipeline& pipeline, double from_s) {
+  ve::core::RawSample s;
+  double sum = 0.0;
+  long n = 0;
+  while (sim.read(s) == ve::drivers::ReadStatus::ok) {
+    const auto& e = pipeline.step(s);
+    if (static_cast<double>(s.t_ns) * 1e-9 < from_s) continue;
+    const double err = e.position_m - sim.truth()->position_m;
+    sum += err * err;
+    ++n;
+  }
+  return std::sqrt(sum / std::max(1L, n));
+}
+
+/// The simulated gain change of a sensor with coefficient `hall_tc_per_k`: the
+/// magnets' remanence and the sensor's own.
+double simulated_gain(const ve::sim::SimConfig& cfg, double rise_k, double hall_tc_per_k) {
+  return (1.0 + hall_tc_per_k * rise_k) * (1.0 + cfg.temperature.magnet_remanence_per_k * rise_k) - 1.0;
+}
+
 struct AdaptationRun {
   double gain[ve::core::kMaxHalls] = {}, offset_v[ve::core::kMaxHalls] = {};
   double truth_gain[ve::core::kMaxHalls] = {}, truth_offset_v[ve::core::kMaxHalls] = {};
@@ -24,11 +54,8 @@ struct AdaptationRun {
 
 AdaptationRun run(double rise_k, bool dead_sensor = false) {
   const auto& r = ve::test::realistic("sim-realistic.yaml");
-  ve::sim::SimConfig cfg = r.axis.driver.sim;  // the multisine of the machine file
-  cfg.realtime = false;
-  cfg.noise_seed = 31;
+  ve::sim::SimConfig cfg = sim_config(r, rise_k);
   cfg.duration_s = 6.0;
-  cfg.temperature.offset_k = rise_k;
   if (dead_sensor) {
     cfg.fault_count = 1;
     cfg.faults[0].kind = ve::sim::FaultConfig::Kind::hall_stuck_mid;
@@ -38,25 +65,15 @@ AdaptationRun run(double rise_k, bool dead_sensor = false) {
   ve::sim::SimSource sim(r.axis.motor, cfg);
   EXPECT_TRUE(sim.ok()) << sim.last_error();
   ve::core::AxisPipeline pipeline = ve::test::calibrated_pipeline(r, cfg.profile.start_m);
-  ve::core::RawSample s;
-  double sum = 0.0;
-  long n = 0;
-  while (sim.read(s) == ve::drivers::ReadStatus::ok) {
-    const auto& e = pipeline.step(s);
-    if (static_cast<double>(s.t_ns) * 1e-9 < 4.0) continue;
-    const double err = e.position_m - sim.truth()->position_m;
-    sum += err * err;
-    ++n;
-  }
+  const double late_rms_m = late_position_rms_m(sim, pipeline, 4.0);
   AdaptationRun out;
   out.halls = r.axis.motor.hall.count;
-  out.late_position_rms_m = std::sqrt(sum / std::max(1L, n));
+  out.late_position_rms_m = late_rms_m;
   out.faulty = pipeline.last().hall_faulty_mask;
-  const double remanence = cfg.temperature.magnet_remanence_per_k;
   for (int i = 0; i < out.halls; ++i) {
     out.gain[i] = pipeline.adaptation().total_gain(i);  // the common gain and its own
     out.offset_v[i] = pipeline.adaptation().offset_v(i);
-    out.truth_gain[i] = (1.0 + sim.hall_gain_tc_per_k(i) * rise_k) * (1.0 + remanence * rise_k) - 1.0;
+    out.truth_gain[i] = simulated_gain(cfg, rise_k, sim.hall_gain_tc_per_k(i));
     out.truth_offset_v[i] = sim.hall_offset_tc_v_per_k(i) * rise_k;
     std::printf("[ figures  ] %+.0f K sensor %d: gain %+.4f (simulated %+.4f), offset %+.2f mV (simulated %+.2f, plus "
                 "the gain change times its static offset)\n",
@@ -96,10 +113,6 @@ TEST(HallAdaptation, ADeadSensorIsFlaggedNotAdaptedIntoAgreement) {
   EXPECT_LT(d.late_position_rms_m, 1e-6);
 }
 
-}  // namespace
-
-namespace {
-
 /// Standing where one sensor alone is out of saturation on the realistic motor
 /// (0.4321 m), `rise_k` away from the calibration temperature: the common gain
 /// cannot be told from a position there; the node's temperature tells it.
@@ -109,35 +122,21 @@ struct StandstillRun {
 
 StandstillRun standstill(double rise_k, bool report) {
   const auto& r = ve::test::realistic("sim-realistic.yaml");
-  ve::sim::SimConfig cfg = r.axis.driver.sim;
-  cfg.realtime = false;
-  cfg.noise_seed = 31;
+  ve::sim::SimConfig cfg = sim_config(r, rise_k);
   cfg.profile = ve::sim::MotionProfileConfig{};
   cfg.profile.kind = ve::sim::MotionProfileConfig::Kind::standstill;
   cfg.profile.start_m = 0.4321;
   cfg.profile.min_m = 0.02;
   cfg.profile.max_m = 0.98;
   cfg.duration_s = 2.0;
-  cfg.temperature.offset_k = rise_k;
   cfg.temperature.report = report;
   ve::sim::SimSource sim(r.axis.motor, cfg);
   EXPECT_TRUE(sim.ok()) << sim.last_error();
   ve::core::AxisPipeline pipeline = ve::test::calibrated_pipeline(r, cfg.profile.start_m);
-  ve::core::RawSample s;
-  double sum = 0.0;
-  long n = 0;
-  while (sim.read(s) == ve::drivers::ReadStatus::ok) {
-    const auto& e = pipeline.step(s);
-    if (static_cast<double>(s.t_ns) * 1e-9 < 1.0) continue;
-    const double err = e.position_m - sim.truth()->position_m;
-    sum += err * err;
-    ++n;
-  }
   StandstillRun out;
-  out.rms_m = std::sqrt(sum / std::max(1L, n));
+  out.rms_m = late_position_rms_m(sim, pipeline, 1.0);
   out.common_gain = pipeline.adaptation().common_gain();
-  out.simulated_common_gain =
-      (1.0 + cfg.temperature.magnet_remanence_per_k * rise_k) * (1.0 + cfg.temperature.hall_gain_tc_per_k * rise_k) - 1.0;
+  out.simulated_common_gain = simulated_gain(cfg, rise_k, cfg.temperature.hall_gain_tc_per_k);
   std::printf("[ figures  ] standstill on one sensor, %+.0f K, temperature %s: position rms %.3f um, common gain %+.4f "
               "(simulated mean %+.4f)\n",
               rise_k, report ? "reported" : "not reported", out.rms_m * 1e6, out.common_gain, out.simulated_common_gain);
