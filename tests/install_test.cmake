@@ -9,6 +9,7 @@ foreach(f
     usr/lib/systemd/system/virtual-encoder.service
     usr/lib/sysctl.d/60-virtual-encoder.conf
     usr/share/virtual-encoder/dds-profiles.xml
+    usr/share/virtual-encoder/install-machine.sh
     usr/share/virtual-encoder/config/machines/sim.yaml
     usr/share/virtual-encoder/config/motors/sim-12mm.yaml
     usr/share/doc/virtual-encoder/README.md)
