@@ -8,7 +8,9 @@
 //  - the same bare reader with Fast DDS's defaults (shared memory and UDPv4: a
 //    drive controller that configured nothing);
 //  - the Cyclone DDS C reader of the interop test (tests/interop/cyclone_subscriber.c
-//    --follow), when Cyclone DDS is installed.
+//    --follow), when Cyclone DDS is installed, twice: with the configuration
+//    docs/dds-integration.md documents for a Cyclone consumer, and with Cyclone's
+//    defaults (--defaults).
 // Each must stay alive through every cycle, receive every new incarnation, and end
 // cleanly on SIGTERM at the end (no hang). The publisher is started the way the
 // systemd unit starts it (the shipped profiles from FASTRTPS_DEFAULT_PROFILES_FILE)
@@ -193,6 +195,7 @@ TEST(PublisherKill, SubscribersSurviveEveryCrashAndReceiveAgain) {
   add("bare-defaults", {VE_BARE_READER, d, hold_s, "--defaults"}, false, false);
 #ifdef VE_CYCLONE_SUBSCRIBER
   add("cyclone", {VE_CYCLONE_SUBSCRIBER, "--follow", d, hold_s}, false, false);
+  add("cyclone-defaults", {VE_CYCLONE_SUBSCRIBER, "--follow", d, hold_s, "--defaults"}, false, false);
 #else
   std::printf("[ skipped  ] the Cyclone DDS reader: Cyclone DDS not installed (cyclonedds-dev, cyclonedds-tools)\n");
 #endif
@@ -276,13 +279,13 @@ TEST(PublisherKill, SubscribersSurviveEveryCrashAndReceiveAgain) {
 
   std::printf("[ figures  ] %d SIGKILL/restart cycles of `virtual-encoder run` (domain %d); per subscriber, ms:\n",
               completed, domain);
-  std::printf("[ figures  ] %-14s %10s %8s %9s %10s %9s %10s %10s\n", "subscriber", "exec->1st", "worst",
+  std::printf("[ figures  ] %-16s %10s %8s %9s %10s %9s %10s %10s\n", "subscriber", "exec->1st", "worst",
               "over 1 s", "published", "worst", "gap", "gap worst");
   for (std::size_t i = 0; i < subs.size(); ++i) {
     const auto& st = stats[i];
     const long over = std::count_if(st.exec_to_first_ms.begin(), st.exec_to_first_ms.end(),
                                     [](double ms) { return ms > 1000.0; });
-    std::printf("[ figures  ] %-14s %10.0f %8.0f %9ld %10.0f %9.0f %10s %10s\n", subs[i].name.c_str(),
+    std::printf("[ figures  ] %-16s %10.0f %8.0f %9ld %10.0f %9.0f %10s %10s\n", subs[i].name.c_str(),
                 median(st.exec_to_first_ms), worst(st.exec_to_first_ms), over, median(st.published_before_ms),
                 worst(st.published_before_ms),
                 st.gap_ms.empty() ? "-" : std::to_string(static_cast<long>(median(st.gap_ms))).c_str(),
