@@ -506,6 +506,38 @@ Value Value::at(std::size_t i) const {
 }
 
 // ---------------------------------------------------------------------------
+// KeyRecorder
+
+namespace {
+thread_local KeyRecorder* t_key_recorder = nullptr;
+KeyRecorder* active_key_recorder() { return t_key_recorder; }
+
+/// "axes[0].faults[12].kind" -> "axes[].faults[].kind".
+std::string without_indices(const std::string& path) {
+  std::string out;
+  out.reserve(path.size());
+  for (std::size_t i = 0; i < path.size(); ++i) {
+    out += path[i];
+    if (path[i] != '[') continue;
+    std::size_t j = i + 1;
+    while (j < path.size() && std::isdigit(static_cast<unsigned char>(path[j]))) ++j;
+    if (j > i + 1 && j < path.size() && path[j] == ']') i = j - 1;
+  }
+  return out;
+}
+}  // namespace
+
+KeyRecorder::KeyRecorder() : previous_(t_key_recorder) { t_key_recorder = this; }
+KeyRecorder::~KeyRecorder() { t_key_recorder = previous_; }
+
+void KeyRecorder::add(const std::string& file, const std::string& path) {
+  Key k{file, without_indices(path)};
+  for (const auto& e : keys_)
+    if (e.file == k.file && e.path == k.path) return;
+  keys_.push_back(std::move(k));
+}
+
+// ---------------------------------------------------------------------------
 // Map
 
 struct Map::Impl {
@@ -523,6 +555,7 @@ struct Map::Impl {
   bool finished = false;
   std::vector<Entry> entries;
   std::vector<std::string> known;
+  std::vector<std::string> rejected;  // for KeyRecorder only
 
   const Entry* find(std::string_view key) const {
     for (const auto& e : entries)
@@ -620,6 +653,8 @@ Map Map::map(std::string_view key) { return value(key).as_map(); }
 
 void Map::reject(std::string_view key, const std::string& why) {
   if (!impl_) return;
+  if (std::find(impl_->rejected.begin(), impl_->rejected.end(), key) == impl_->rejected.end())
+    impl_->rejected.emplace_back(key);
   for (auto& e : impl_->entries) {
     if (e.key != key || e.used) continue;
     e.used = true;
@@ -643,6 +678,11 @@ void Map::finish() {
   if (!impl_ || impl_->finished) return;
   impl_->finished = true;
   if (!impl_->doc) return;
+  if (KeyRecorder* rec = active_key_recorder()) {
+    for (const auto& k : impl_->known)
+      if (std::find(impl_->rejected.begin(), impl_->rejected.end(), k) == impl_->rejected.end())
+        rec->add(impl_->doc->file(), field(k));
+  }
   for (const auto& e : impl_->entries) {
     if (e.used) continue;
     std::string msg = "unknown key '" + e.key + "'";

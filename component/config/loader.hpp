@@ -226,6 +226,35 @@ class Map {
   std::unique_ptr<Impl> impl_;
 };
 
+/// Records, on the calling thread while it exists, every key a Map declared valid: the
+/// list the unknown-key check compares a file's keys against, so the keys recorded are
+/// exactly the keys the loaders accept. Each key is recorded once, with the file it was
+/// read for and its path, sequence indices written as "[]"
+/// ("axes[].driver.imperfections.frame_vibration_hz"). A key a Map rejected (valid
+/// only in another variant, e.g. `log` under a sim driver) is not recorded for that Map.
+/// Keys are recorded when their Map is finished; a discarded Map records nothing.
+/// Recording does not change what is loaded or reported.
+class KeyRecorder {
+ public:
+  struct Key {
+    std::string file;  ///< Document::file() of the document the key was read for
+    std::string path;
+  };
+  KeyRecorder();
+  ~KeyRecorder();
+  KeyRecorder(const KeyRecorder&) = delete;
+  KeyRecorder& operator=(const KeyRecorder&) = delete;
+
+  /// Keys recorded so far, in order of first recording.
+  const std::vector<Key>& keys() const { return keys_; }
+
+ private:
+  friend class Map;
+  void add(const std::string& file, const std::string& path);
+  KeyRecorder* previous_ = nullptr;
+  std::vector<Key> keys_;
+};
+
 /// One file being read. Errors go to the caller's list and name `file`.
 class Document {
  public:
