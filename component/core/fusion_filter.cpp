@@ -8,6 +8,11 @@
 namespace ve::core {
 
 namespace {
+/// An accelerometer innovation beyond this many sigmas is a step of acceleration.
+constexpr double kAccelStepSigma = 8.0;
+}  // namespace
+
+namespace {
 /// The bias step test starts this long after the filter (re)starts with the
 /// accelerometer: before, its own start-up transient leans the Hall innovations
 /// one way [s].
@@ -350,8 +355,12 @@ double FusionFilter::update_hall(double z_m, double r_m2, double gate_sigma, boo
   if (accel_available_ && h > 0.0) {
     // Hall innovations persistently of one sign: the accelerometer's reading moved
     // without the carriage (a bias step). Free the bias state to follow it.
-    const bool up = cusum_step(hall_up_, nu_norm, 0.0, 1.0, h);
-    const bool down = cusum_step(hall_down_, -nu_norm, 0.0, 1.0, h);
+    // A bias step shows as innovations that grow sample after sample; one far
+    // beyond the gate is a step of acceleration (or a spike) seen by the Halls
+    // first, and counts no more than the gate.
+    const double z = gate_sigma > 0.0 ? std::clamp(nu_norm, -gate_sigma, gate_sigma) : nu_norm;
+    const bool up = cusum_step(hall_up_, z, 0.0, 1.0, h);
+    const bool down = cusum_step(hall_down_, -z, 0.0, 1.0, h);
     if (up || down) {
       const double sb = tuning_.accel_bias_step_std_mps2;
       p_(kBias, kBias) += sb * sb;
@@ -378,8 +387,44 @@ double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bo
   const double vib = vibration_ ? x_(kVibIn) : 0.0;
   const double predicted = scale * a_delayed + x_(kBias) + vib;
   const double nu = z_mps2 - predicted;
+  // A step of acceleration (a drive without a jerk limit commands them): far beyond
+  // what the model lets the acceleration do in one sample, so the update would give
+  // most of it to the bias (in the calm model, all of it). The acceleration is
+  // opened by the size of the step first, and the calm model left.
+  bool step = false;
+  if (std::abs(nu) > kAccelStepSigma * std::sqrt(r)) {
+    const double s_pred = h.dot(p_ * h.transpose()) + r;
+    if (std::abs(nu) > kAccelStepSigma * std::sqrt(s_pred) && !(gate_sigma > 0.0 && std::abs(nu) > gate_sigma * std::sqrt(s_pred))) {
+      step = true;
+      if (steady_) leave_steady(nullptr, 0.0, 0.0);
+      const double da = nu / scale;
+      p_(kAcc, kAcc) += da * da;
+    }
+  }
+  const double a_before = x_(kAcc);
   const double nu_norm = scalar_update(h, nu, r, gate_sigma, applied);
   if (!applied) return nu_norm;  // a spike tells nothing about the motion
+  // The reading shows a step after it happened, and the jerk state, made for
+  // smooth changes, cannot say so: what the carriage did in the meantime at the new
+  // acceleration is added, as it happened.
+  if (step) {
+    // It happened between d and d + ts ago (the reading before this one did not
+    // show it yet): half a period more than the delay, on average.
+    const double since = d + 0.5 * ts_;
+    const double da = x_(kAcc) - a_before;
+    x_(kVel) += da * since;
+    x_(kPos) += 0.5 * da * since * since;
+    // When within the period it happened is uniform over ts: that much velocity
+    // and position are unknown, which the Hall fixes settle in a few samples.
+    const double var_t = ts_ * ts_ / 12.0;
+    const double gv = da, gp = da * since;  // d(velocity), d(position) per second of "since"
+    p_(kVel, kVel) += gv * gv * var_t;
+    p_(kPos, kPos) += gp * gp * var_t;
+    p_(kPos, kVel) += gp * gv * var_t;
+    p_(kVel, kPos) += gp * gv * var_t;
+    // The Hall innovations lean one way until then: that is the step, not the bias.
+    hall_up_ = hall_down_ = Cusum{};
+  }
   steady_test(z_mps2 - vib);
   if (steady_) {
     const double th = tuning_.steady_exit_cusum;

@@ -237,6 +237,16 @@ double AxisPipeline::accel_reading(const RawSample& sample) const {
   return use_frame(sample) ? sample.accel_mps2 - sample.accel_base_mps2 : sample.accel_mps2;
 }
 
+void AxisPipeline::update_accelerometer(const RawSample& sample) {
+  bool used = false;
+  const bool frame = use_frame(sample);
+  const double r = frame ? 2.0 * accel_var_ : accel_var_;
+  // Spike rejection by size: a sigma gate would also reject real acceleration steps.
+  const double spike_sigma =
+      cfg_.motor.filter.accel_spike_mps2 / std::sqrt(r + kf_.covariance()(FusionFilter::kAcc, FusionFilter::kAcc));
+  kf_.update_accel(accel_reading(sample), r, spike_sigma, used);
+}
+
 const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   std::uint32_t status = cfg_.calibrated ? status::kCalibrated : 0u;
   out_.t_ns = sample.t_ns;
@@ -282,6 +292,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   last_t_ns_ = sample.t_ns;
 
   bool applied = false;
+  bool accel_taken = false;
   out_.hall_sensors_used = 0;
   if (!initialised_) {
     initialised_ = acquire(sample);
@@ -294,6 +305,13 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   } else {
     for (int i = 0; i < steps; ++i) kf_.predict();
     ++settled_samples_;
+    // The accelerometer first: a step of acceleration it shows moves the prediction
+    // the Hall fix is then judged against (the other way round, the fix of the
+    // sample that shows a step would be rejected, and the output not VALID for it).
+    if (accel_ok) {
+      update_accelerometer(sample);
+      accel_taken = true;
+    }
 
     // The Halls saw the track at t - hall_delay; start the search there. The coil
     // field adds the same offset to every sensor, in proportion to the force.
@@ -392,14 +410,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   }
   if (!applied) status |= status::kHallRejected;
 
-  if (accel_ok) {
-    bool used = false;
-    const bool frame = use_frame(sample);
-    const double r = frame ? 2.0 * accel_var_ : accel_var_;
-    // Spike rejection by size: a sigma gate would also reject real acceleration steps.
-    const double spike_sigma = cfg_.motor.filter.accel_spike_mps2 / std::sqrt(r + kf_.covariance()(FusionFilter::kAcc, FusionFilter::kAcc));
-    kf_.update_accel(accel_reading(sample), r, spike_sigma, used);
-  }
+  // Just (re)acquired: the accelerometer after the Halls that placed the filter.
+  if (accel_ok && !accel_taken) update_accelerometer(sample);
 
   const auto& x = kf_.state();
   const auto& p = kf_.covariance();

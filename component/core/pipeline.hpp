@@ -89,6 +89,8 @@ class AxisPipeline {
   bool use_frame(const RawSample& sample) const;
   bool accel_usable(const RawSample& sample) const;
   double accel_reading(const RawSample& sample) const;
+  /// The accelerometer's measurement update (its spike test included).
+  void update_accelerometer(const RawSample& sample);
 
   PipelineConfig cfg_;
   HallArray hall_;
