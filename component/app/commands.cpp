@@ -370,7 +370,7 @@ void use_kept_position(AxisSetup& setup) {
   config::KeptPosition kept;
   std::string why;
   switch (config::take_kept_position(axis.homing.state_file, axis.name, axis.motor.name, setup.calibration.info.id, kept,
-                             why)) {
+                                     why, axis.motor.travel_m)) {
     case config::KeptRead::none:
       spdlog::info("axis '{}': no position kept from a clean shutdown; homing by the magnet signature on the "
                    "first move",
@@ -381,11 +381,6 @@ void use_kept_position(AxisSetup& setup) {
                    axis.name, why);
       return;
     case config::KeptRead::ok: break;
-  }
-  if (kept.position_m < 0.0 || kept.position_m > axis.motor.travel_m) {
-    spdlog::warn("axis '{}': kept position {:.6f} m is outside the travel; homing by the magnet signature",
-                 axis.name, kept.position_m);
-    return;
   }
   setup.pipeline = std::make_unique<core::AxisPipeline>(
       pipeline_config(axis, setup.calibration, setup.calibrated, &kept.position_m), setup.calibration.table);

@@ -1,7 +1,8 @@
 // Homing by the magnet signature through the real binary: an axis that starts
 // anywhere homes itself on its first move; at a clean shutdown it keeps its
 // position, so the next start at rest is homed at once; the kept position is used
-// once, and one measured with another calibration is refused with its reason.
+// once, and one measured with another calibration, or outside the travel, is
+// refused with its reason.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -94,8 +95,10 @@ TEST(KeptPosition, HomesOnTheFirstMoveKeepsThePositionAndRestartsHomedAtRest) {
   ASSERT_TRUE(fs::exists(kept));
   EXPECT_NEAR(kept_position(kept), 0.53, 5e-6);
 
+  const std::string good = read_file(kept);
+
   // 3. A position measured with another calibration is refused, with the reason.
-  std::string text = read_file(kept);
+  std::string text = good;
   text = std::regex_replace(text, std::regex("calibration_id: \"[0-9a-f]+\""), "calibration_id: \"0123456789abcdef\"");
   std::ofstream(kept) << text;
   log = run(resting, dir.path / "run3.log", 1.0);
@@ -105,6 +108,16 @@ TEST(KeptPosition, HomesOnTheFirstMoveKeepsThePositionAndRestartsHomedAtRest) {
   // Never moved, never homed: nothing to keep.
   EXPECT_NE(log.find("not homed at shutdown; no position kept"), std::string::npos) << log;
   EXPECT_FALSE(fs::exists(kept));
+
+  // 4. A position outside the motor's travel is refused naming the file, line and
+  //    field, with compact numbers.
+  std::ofstream(kept) << std::regex_replace(good, std::regex("position_m: [-0-9.e+]+"), "position_m: 5");
+  log = run(resting, dir.path / "run4.log", 1.0);
+  EXPECT_NE(log.find("kept position not used"), std::string::npos) << log;
+  EXPECT_NE(log.find("x.kept.yaml:"), std::string::npos) << log;
+  EXPECT_NE(log.find("position_m: 5 out of range [0, "), std::string::npos) << log;
+  EXPECT_EQ(log.find("5.000000"), std::string::npos) << log;
+  EXPECT_EQ(log.find("axis 'x': homed"), std::string::npos) << log;
 }
 
 }  // namespace
