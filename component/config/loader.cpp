@@ -530,11 +530,11 @@ std::string without_indices(const std::string& path) {
 KeyRecorder::KeyRecorder() : previous_(t_key_recorder) { t_key_recorder = this; }
 KeyRecorder::~KeyRecorder() { t_key_recorder = previous_; }
 
-void KeyRecorder::add(const std::string& file, const std::string& path) {
+void KeyRecorder::add(std::vector<Key>& to, const std::string& file, const std::string& path) {
   Key k{file, without_indices(path)};
-  for (const auto& e : keys_)
+  for (const auto& e : to)
     if (e.file == k.file && e.path == k.path) return;
-  keys_.push_back(std::move(k));
+  to.push_back(std::move(k));
 }
 
 // ---------------------------------------------------------------------------
@@ -681,7 +681,8 @@ void Map::finish() {
   if (KeyRecorder* rec = active_key_recorder()) {
     for (const auto& k : impl_->known)
       if (std::find(impl_->rejected.begin(), impl_->rejected.end(), k) == impl_->rejected.end())
-        rec->add(impl_->doc->file(), field(k));
+        KeyRecorder::add(rec->keys_, impl_->doc->file(), field(k));
+    for (const auto& k : impl_->rejected) KeyRecorder::add(rec->rejected_, impl_->doc->file(), field(k));
   }
   for (const auto& e : impl_->entries) {
     if (e.used) continue;

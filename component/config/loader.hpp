@@ -247,12 +247,16 @@ class KeyRecorder {
 
   /// Keys recorded so far, in order of first recording.
   const std::vector<Key>& keys() const { return keys_; }
+  /// Keys a Map rejected as valid only in another variant, in the same form: each
+  /// should be among keys() once a file of that other variant has been read.
+  const std::vector<Key>& rejected() const { return rejected_; }
 
  private:
   friend class Map;
-  void add(const std::string& file, const std::string& path);
+  static void add(std::vector<Key>& to, const std::string& file, const std::string& path);
   KeyRecorder* previous_ = nullptr;
   std::vector<Key> keys_;
+  std::vector<Key> rejected_;
 };
 
 /// One file being read. Errors go to the caller's list and name `file`.

@@ -7,6 +7,8 @@
 // that take every variant: each driver type (sim, replay, socketcan), a fault, both
 // forms of realtime.cpu_affinity, every CAN signal. Keys are declared whether or not
 // the file holds them, so the probes stay short; the errors they cause do not matter.
+// A key the loaders refuse as valid only in another variant must be read by a probe
+// of that variant, so a new variant without a probe fails here too.
 #include <gtest/gtest.h>
 #include <stdlib.h>
 
@@ -88,6 +90,12 @@ std::string reference_form(const std::string& kind, const std::string& path) {
   return path;
 }
 
+/// The last name of a key path: "signals.hall_0.in_can_id" -> "in_can_id".
+std::string leaf(const std::string& path) {
+  const auto dot = path.rfind('.');
+  return dot == std::string::npos ? path : path.substr(dot + 1);
+}
+
 KeySets accepted_keys() {
   TempDir dir;
   dir.write("motor.yaml", "motor: probe\n");
@@ -115,6 +123,18 @@ KeySets accepted_keys() {
     EXPECT_FALSE(kind.empty()) << "key " << k.path << " recorded for an unexpected file " << k.file;
     if (!kind.empty()) keys[kind].insert(reference_form(kind, k.path));
   }
+  // A key refused as "only used with" another variant must have been read in that
+  // variant by some probe, else the probes miss a branch of the loader (a key only
+  // the sequence signal takes is refused for the other signals, so compare names).
+  KeySets rejected;
+  for (const auto& k : recorder.rejected()) rejected[kind_of(k.file)].insert(reference_form(kind_of(k.file), k.path));
+  for (const auto& [kind, paths] : rejected)
+    for (const auto& path : paths) {
+      bool reached = false;
+      for (const auto& a : keys[kind]) reached = reached || leaf(a) == leaf(path);
+      EXPECT_TRUE(reached) << kind << " key " << path
+                           << " is refused as valid only in another variant, which no probe file reads";
+    }
   return keys;
 }
 
