@@ -26,6 +26,8 @@
 // docs/dds-integration.md.
 #include <gtest/gtest.h>
 
+#include <functional>
+
 #include <signal.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -180,15 +182,20 @@ TEST(PublisherKill, SubscribersSurviveEveryCrashAndReceiveAgain) {
   };
 
   std::vector<Subscriber> subs;
+  std::vector<std::function<void(Subscriber&)>> starts;
   auto add = [&](const std::string& name, std::vector<std::string> args, bool csv, bool profiled) {
     Subscriber s;
     s.name = name;
     s.csv = csv;
     s.out_path = tmp + name + ".out";
     s.err_path = tmp + name + ".err";
-    auto start = [&] { return std::make_unique<ve::test::ChildProcess>(args, s.out_path, s.err_path); };
-    s.process = profiled ? with_profiles(start) : start();
+    auto launch = [args, profiled, &with_profiles](Subscriber& sub) {
+      auto start = [&] { return std::make_unique<ve::test::ChildProcess>(args, sub.out_path, sub.err_path); };
+      sub.process = profiled ? with_profiles(start) : start();
+    };
+    launch(s);
     subs.push_back(std::move(s));
+    starts.push_back(launch);
   };
   add("monitor", {VE_BINARY, "monitor", "--domain", d, "--csv", "--duration", hold_s}, true, false);
   add("bare-profile", {VE_BARE_READER, d, hold_s}, false, true);
@@ -200,11 +207,22 @@ TEST(PublisherKill, SubscribersSurviveEveryCrashAndReceiveAgain) {
   std::printf("[ skipped  ] the Cyclone DDS reader: Cyclone DDS not installed (cyclonedds-dev, cyclonedds-tools)\n");
 #endif
   for (auto& s : subs) ASSERT_TRUE(s.process->started()) << s.name;
-  for (auto& s : subs) {
+  for (std::size_t i = 0; i < subs.size(); ++i) {
+    auto& s = subs[i];
     if (s.csv) continue;
-    ASSERT_TRUE(ve::test::wait_until([&] { return ve::test::read_file(s.out_path).find("READY") != std::string::npos; },
-                                     ve::test::patience(20s)))
-        << s.log();
+    auto ready = [&] { return ve::test::read_file(s.out_path).find("READY") != std::string::npos; };
+    if (!ve::test::wait_until(ready, ve::test::patience(20s))) {
+      // A test reader that never got its own participant and reader up (no
+      // encoder runs yet: nothing of the product's is involved; the Fast DDS reader
+      // with the shipped profile, in 2 of 13 runs on this 2-core host, with nothing
+      // on its stdout or stderr) is started once more, and said so.
+      std::printf("[ note     ] %s did not say READY within 20 s before any encoder ran; started again\n",
+                  s.name.c_str());
+      s.process.reset();
+      starts[i](s);
+      ASSERT_TRUE(s.process->started()) << s.name;
+      ASSERT_TRUE(ve::test::wait_until(ready, ve::test::patience(20s))) << s.log();
+    }
   }
 
   std::mt19937 rng(static_cast<unsigned>(getpid()));
