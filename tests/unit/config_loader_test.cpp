@@ -13,33 +13,16 @@
 
 #include "config/embedded.hpp"
 #include "config/loader.hpp"
+#include "../integration/temp_dir.hpp"
 
 namespace ve::config {
 namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    std::string tmpl = (fs::temp_directory_path() / "ve-config-test-XXXXXX").string();
-    if (!::mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
-    path_ = tmpl;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string write(const std::string& name, const std::string& text) const {
-    const fs::path p = path_ / name;
-    fs::create_directories(p.parent_path());
-    std::ofstream(p) << text;
-    return p.string();
-  }
-  std::string path(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
+/// A scratch folder, removed with the test (tests/integration/temp_dir.hpp).
+struct TempDir : ve::test::TempDir {
+  TempDir() : ve::test::TempDir("ve_config_test") {}
 };
 
 constexpr const char* kMotor =
@@ -87,7 +70,7 @@ TEST(ConfigLoader, MinimalMachineUsesDefaults) {
   EXPECT_EQ(r.config.axes[0].id, 1u);
   EXPECT_EQ(r.config.axes[1].id, 2u);
   EXPECT_EQ(r.config.axes[1].motor.name, "test-motor");
-  EXPECT_EQ(r.config.axes[1].motor_file, dir.path("m.yaml"));
+  EXPECT_EQ(r.config.axes[1].motor_file, dir.file("m.yaml"));
   EXPECT_EQ(r.config.dds.domain, 0);
   EXPECT_EQ(r.config.axes[0].driver.kind, DriverConfig::Kind::sim);
   EXPECT_EQ(r.config.axes[0].homing.mode, HomingConfig::Mode::startup_position);
@@ -268,7 +251,7 @@ TEST(ConfigLoader, SharedBrokenMotorIsReportedOnce) {
 
 TEST(ConfigLoader, UnreadableFiles) {
   TempDir dir;
-  const auto missing = dir.path("nope.yaml");
+  const auto missing = dir.file("nope.yaml");
   const LoadResult r = load_machine_file(missing);
   ASSERT_EQ(r.errors.size(), 1u);
   EXPECT_EQ(r.errors[0].file, missing);
@@ -301,9 +284,9 @@ TEST(ConfigLoader, CalibrationMayBeMissingWhenAboutToBeCreated) {
   options.calibration_must_exist = false;
   const LoadResult r = load_machine_file(path, options);
   ASSERT_TRUE(r.ok()) << to_string(r.errors);
-  EXPECT_EQ(r.config.axes[0].calibration_file, dir.path("cal/x.cal.yaml"));
+  EXPECT_EQ(r.config.axes[0].calibration_file, dir.file("cal/x.cal.yaml"));
   // Present but unreadable (here: a directory) is still an error.
-  std::filesystem::create_directories(dir.path("cal/x.cal.yaml"));
+  std::filesystem::create_directories(dir.file("cal/x.cal.yaml"));
   expect_error(load_machine_file(path, options), path, 4, 18, "axes[0].calibration", "Is a directory");
 }
 
@@ -324,11 +307,11 @@ TEST(ConfigLoader, ReferencedFilesResolveRelativeToMachineFile) {
                               "    driver: {type: replay, log: ../logs/run.csv}\n");
   const LoadResult r = load_machine_file(path);
   ASSERT_TRUE(r.ok()) << to_string(r.errors);
-  EXPECT_EQ(r.config.dds.profiles_file, dir.path("deploy/profiles.xml"));
-  EXPECT_EQ(r.config.axes[0].motor_file, dir.path("motors/m.yaml"));
-  EXPECT_EQ(r.config.axes[0].calibration_file, dir.path("calibration/x.cal.yaml"));
+  EXPECT_EQ(r.config.dds.profiles_file, dir.file("deploy/profiles.xml"));
+  EXPECT_EQ(r.config.axes[0].motor_file, dir.file("motors/m.yaml"));
+  EXPECT_EQ(r.config.axes[0].calibration_file, dir.file("calibration/x.cal.yaml"));
   EXPECT_EQ(r.config.axes[1].driver.kind, DriverConfig::Kind::replay);
-  EXPECT_EQ(r.config.axes[1].driver.replay_path, dir.path("logs/run.csv"));
+  EXPECT_EQ(r.config.axes[1].driver.replay_path, dir.file("logs/run.csv"));
 }
 
 TEST(ConfigLoader, ReplayDriverNeedsLogAndRejectsSimKeys) {
@@ -847,7 +830,7 @@ TEST(ConfigLoader, SignatureHomingNeedsACalibrationAndOnlyItTakesAStateFile) {
   const LoadResult r2 = load_machine_file(ok, opt);
   ASSERT_TRUE(r2.ok()) << to_string(r2.errors);
   EXPECT_EQ(r2.config.axes[0].homing.mode, HomingConfig::Mode::signature);
-  EXPECT_EQ(r2.config.axes[0].homing.state_file, dir.path("state/x.kept.yaml"));
+  EXPECT_EQ(r2.config.axes[0].homing.state_file, dir.file("state/x.kept.yaml"));
 }
 
 }  // namespace
@@ -1008,7 +991,7 @@ TEST(ConfigLoader, ASecondYamlDocumentIsAnError) {
 
 TEST(ConfigLoader, NonRegularAndOversizedFilesAreRefusedAtOnce) {
   TempDir dir;
-  const auto fifo = dir.path("fifo.yaml");
+  const auto fifo = dir.file("fifo.yaml");
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
   // Returns at once: a FIFO without a writer is never opened blocking.
   const LoadResult f = load_machine_file(fifo);

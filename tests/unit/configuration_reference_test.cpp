@@ -23,6 +23,7 @@
 
 #include "config/calibration_file.hpp"
 #include "config/loader.hpp"
+#include "../integration/temp_dir.hpp"
 #include "core/motor.hpp"
 #include "socketcan/can_layout_file.hpp"
 
@@ -37,25 +38,9 @@ const char* const kKinds[] = {"machine", "motor", "calibration", "can_layout"};
 constexpr const char* kReference = VE_SOURCE_DIR "/docs/configuration.md";
 constexpr const char* kProbeAxis = "probe";
 
-class TempDir {
- public:
-  TempDir() {
-    std::string tmpl = (fs::temp_directory_path() / "ve-reference-test-XXXXXX").string();
-    if (!::mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
-    path_ = tmpl;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string write(const std::string& name, const std::string& text) const {
-    const fs::path p = path_ / name;
-    std::ofstream(p) << text;
-    return p.string();
-  }
-
- private:
-  fs::path path_;
+/// A scratch folder, removed with the test (tests/integration/temp_dir.hpp).
+struct TempDir : ve::test::TempDir {
+  TempDir() : ve::test::TempDir("ve_reference_test") {}
 };
 
 std::string machine_probe(const std::string& driver, const std::string& realtime) {
