@@ -552,6 +552,9 @@ int run_command(const RunOptions& options) {
       if (!announced) wait = std::min(wait, 0.01);
       if (service.watchdog_period_s() > 0) wait = std::min(wait, service.watchdog_period_s());
       if (options.duration_s > 0) wait = std::min(wait, std::max(0.0, options.duration_s - elapsed));
+      // Sources that end (a replayed log) are noticed within a tenth of a second,
+      // not at the next status line.
+      wait = std::min(wait, 0.1);
       if (wait_for_termination(std::max(wait, 0.001))) {
         spdlog::info("termination signal: stopping");
         break;
@@ -568,7 +571,9 @@ int run_command(const RunOptions& options) {
       } else if (service.watchdog_period_s() > 0 && all_progressed()) {
         service.watchdog();
       }
-      if (std::chrono::steady_clock::now() < next_status &&
+      bool sources_ended = true;
+      for (const auto& l : loops) sources_ended = sources_ended && l->finished.load();
+      if (std::chrono::steady_clock::now() < next_status && !sources_ended &&
           !(options.duration_s > 0 &&
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() >= options.duration_s))
         continue;

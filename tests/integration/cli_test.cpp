@@ -19,6 +19,7 @@
 #include "sim/calibration_run.hpp"
 #include "core/status.hpp"
 #include "process.hpp"
+#include "speed.hpp"
 #include "temp_dir.hpp"
 #include "test_domain.hpp"
 
@@ -265,6 +266,29 @@ TEST(Cli, CalibrateFromARecordedLogWithReference) {
   EXPECT_NE(out.find("ref_position_m"), std::string::npos) << out;
   // ... and the calibration written before is untouched.
   EXPECT_TRUE(ve::config::load_calibration_file(cal.string(), axis.motor).ok());
+}
+
+}  // namespace
+
+namespace {
+
+TEST(Cli, RunEndsSoonAfterItsReplayedLogWhateverTheStatusPeriod) {
+  TempDir dir;
+  std::string out;
+  // A short recording of the built-in simulator, replayed as fast as it can be read.
+  const fs::path log = dir.path / "short.csv";
+  ASSERT_EQ(run_cli({"record", "--out", log.string(), "--duration", "0.3"}, out, dir.path / "record.log"), 0) << out;
+  const fs::path machine = dir.path / "replay.yaml";
+  write(machine, "axes:\n  - name: x\n    motor: " + motor_path() + "\n    driver: {type: replay, log: " + log.string() +
+                     "}\n");
+  // With a status line only once a day, the end of the log must still end the run
+  // (it used to wait for the next status line).
+  std::vector<std::string> argv{VE_BINARY, "run", "--config", machine.string(), "--domain",
+                                std::to_string(ve::test::dds_domain()), "--status-period", "86400"};
+  ChildProcess p(argv, (dir.path / "run.log").string());
+  ASSERT_TRUE(p.started());
+  EXPECT_EQ(p.wait_exit(ve::test::patience(60s)), 0) << p.log();
+  EXPECT_NE(p.log().find("all sources ended"), std::string::npos) << p.log();
 }
 
 }  // namespace
