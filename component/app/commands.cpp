@@ -581,7 +581,6 @@ int run_command(const RunOptions& options) {
       const auto now = std::chrono::steady_clock::now();
       const double dt = std::chrono::duration<double>(now - last_report).count();
       last_report = now;
-      bool all_finished = true;
       for (std::size_t i = 0; i < loops.size(); ++i) {
         auto& l = *loops[i];
         const auto n = l.samples.load();
@@ -592,9 +591,8 @@ int run_command(const RunOptions& options) {
                      state_writer.deadline_missed(l.setup.config.id), l.skipped.load(), l.innovation_rms.load(),
                      l.step_max_us.load(), core::status_to_string(l.status.load()));
         last_counts[i] = n;
-        all_finished = all_finished && l.finished.load();
       }
-      if (all_finished) {
+      if (sources_ended) {
         spdlog::info("all sources ended");
         break;
       }

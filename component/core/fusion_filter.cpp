@@ -10,9 +10,6 @@ namespace ve::core {
 namespace {
 /// An accelerometer innovation beyond this many sigmas is a step of acceleration.
 constexpr double kAccelStepSigma = 8.0;
-}  // namespace
-
-namespace {
 /// The bias step test starts this long after the filter (re)starts with the
 /// accelerometer: before, its own start-up transient leans the Hall innovations
 /// one way [s].

@@ -126,7 +126,7 @@ double HallAdaptation::residual(const RawSample& raw, const HallTable& table, in
 void HallAdaptation::update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
                             std::uint32_t mask, std::uint32_t learn_only_mask, double share) {
   if (!enabled_) return;
-  share_ = std::clamp(share, 1e-9, 1.0);
+  share = std::clamp(share, 1e-9, 1.0);
   p_common_ = std::min(p_common_ + q_common_, p0_common_);
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
@@ -147,7 +147,7 @@ void HallAdaptation::update(const RawSample& raw, const HallTable& table, double
     const double x1 = x_m + s_sr / s_ss;
     residuals(raw, table, x1, common_mode_v, mask, learn_only_mask, r, u, sl, usable, s_sr, s_ss);
   }
-  learn(r, u, sl, usable, s_sr, s_ss, learn_only_mask);
+  learn(r, u, sl, usable, s_sr, s_ss, learn_only_mask, share);
 }
 
 void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
@@ -179,7 +179,7 @@ void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, dou
 
 void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
                            const std::array<double, kMaxHalls>& sl, std::uint32_t usable, double s_sr, double s_ss,
-                           std::uint32_t learn_only_mask) {
+                           std::uint32_t learn_only_mask, double share) {
   for (int i = 0; i < sensors_; ++i) {
     if (!(usable >> i & 1u)) continue;
     const auto k = static_cast<std::size_t>(i);
@@ -198,8 +198,8 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
     const double ph_g = p_gg_[k] * u[k] + p_gd_[k];
     const double ph_d = p_gd_[k] * u[k] + p_dd_[k];
     const double s_cusum = u[k] * ph_g + ph_d + rv;
-    // The update itself takes the sample as worth share_ of a new one.
-    const double s = s_cusum + rv * (1.0 / share_ - 1.0);
+    // The update itself takes the sample as worth `share` of a new one.
+    const double s = s_cusum + rv * (1.0 / share - 1.0);
     // A change faster than the random walk: the residual keeps one sign. Re-open.
     Cusum& c = cusum_[k];
     const double z = res / std::sqrt(s_cusum);

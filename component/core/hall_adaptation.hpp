@@ -121,7 +121,7 @@ class HallAdaptation {
                  std::array<double, kMaxHalls>& sl, std::uint32_t& usable, double& s_sr, double& s_ss) const;
   void learn(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
              const std::array<double, kMaxHalls>& sl, std::uint32_t usable, double s_sr, double s_ss,
-             std::uint32_t learn_only_mask);
+             std::uint32_t learn_only_mask, double share);
   struct Cusum {
     double up = 0.0, down = 0.0;
   };
@@ -134,7 +134,6 @@ class HallAdaptation {
   double q_common_, p0_common_;       ///< the common gain's random walk and start-up variance
   double model_var_common_;           ///< the least variance one fix's common gain can have
   double model_var_v2_;               ///< the least variance one sample's residual has [V^2]
-  double share_ = 1.0;                ///< the current sample's share of new information (update())
   double common_tc_per_k_;            ///< remanence + mean Hall sensitivity coefficient [1/K]
   double tc_rel_std_, gain_tc_std_, offset_tc_std_v_;
   static constexpr double kReadingStdK = 0.3;         ///< one reading of the node: noise and resolution [K]

@@ -117,16 +117,16 @@ void find_vibration(const std::vector<ReferenceSegment>& segments, const std::ve
   double mean = 0.0;
   for (double x : r) mean += x;
   mean /= static_cast<double>(n);
-  std::vector<double> w(n);
-  double wsum = 0.0;
-  for (std::size_t i = 0; i < n; ++i) {
-    w[i] = 0.5 - 0.5 * std::cos(2.0 * M_PI * static_cast<double>(i) / static_cast<double>(n - 1));
-    wsum += w[i];
-  }
   std::size_t nfft = 1;
   while (nfft < 4 * n) nfft <<= 1;
+  // The windowed residual, then zeros; the direct sums below read it too.
   std::vector<double> padded(nfft, 0.0);
-  for (std::size_t i = 0; i < n; ++i) padded[i] = w[i] * (r[i] - mean);
+  double wsum = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double w = 0.5 - 0.5 * std::cos(2.0 * M_PI * static_cast<double>(i) / static_cast<double>(n - 1));
+    wsum += w;
+    padded[i] = w * (r[i] - mean);
+  }
   std::vector<std::complex<double>> spectrum;
   Eigen::FFT<double> fft;
   fft.fwd(spectrum, padded);
@@ -151,9 +151,8 @@ void find_vibration(const std::vector<ReferenceSegment>& segments, const std::ve
     const double cw = std::cos(wt), sw = std::sin(wt);
     double c = 1.0, s = 0.0, sum_c = 0.0, sum_s = 0.0;
     for (std::size_t i = 0; i < n; ++i) {
-      const double x = w[i] * (r[i] - mean);
-      sum_c += x * c;
-      sum_s += x * s;
+      sum_c += padded[i] * c;
+      sum_s += padded[i] * s;
       const double c2 = c * cw - s * sw;
       s = s * cw + c * sw;
       c = c2;

@@ -362,13 +362,15 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       const double fix_var = fix.variance_m2;
       const double wide_gate = gate * std::sqrt(1.0 + disagreement_var_m2_ / fix.variance_m2);
       out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix_var, wide_gate, applied);
+      // How fast the fixes move to new places: what renews their repeating errors.
+      const double speed = std::abs(xp(FusionFilter::kVel));
       if (learn) {
         // The gain every sensor shares, as this fix saw it; then each sensor's own.
         // A sample taken where the last one was repeats its errors: it carries new
         // information in proportion to the travel since (a 200th of a magnet
         // period counts as a new place).
-        const double share = std::min(1.0, std::abs(xp(FusionFilter::kVel)) * kf_.period_s() /
-                                               (kNewPlaceShareOfPitch * cfg_.motor.magnet_pitch_m));
+        const double share =
+            std::min(1.0, speed * kf_.period_s() / (kNewPlaceShareOfPitch * cfg_.motor.magnet_pitch_m));
         adapt_.update_common(fix.common_gain, fix.common_gain_variance, share);
         // An outlier nobody can be blamed for (a drift) is exactly what must learn.
         adapt_.update(sample, hall_.table(), guess, common_mode, use & ~(ambiguous ? 0u : outlier), faulty_mask_,
@@ -381,11 +383,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       // the fixes it averages (the ratio of a fix's variance to its own).
       const double p_pos = kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos);
       const double averaged_s = kf_.period_s() * std::max(1.0, fix_var / std::max(p_pos, 1e-30));
-      const double steps = std::abs(xp(FusionFilter::kVel)) * averaged_s / quantisation_travel_m_;
+      const double steps = speed * averaged_s / quantisation_travel_m_;
       quantisation_var_m2_ = fix.quantisation_m2 / (1.0 + steps);
       // A gain or offset error moves the fixes by a pattern that repeats with the
       // magnet period: it averages out over a good part of one.
-      const double quarters = std::abs(xp(FusionFilter::kVel)) * averaged_s / (0.25 * cfg_.motor.magnet_pitch_m);
+      const double quarters = speed * averaged_s / (0.25 * cfg_.motor.magnet_pitch_m);
       drift_var_m2_ = fix.drift_m2 / (1.0 + quarters);
       if (applied) {
         rejected_in_row_ = 0;
