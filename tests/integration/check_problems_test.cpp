@@ -16,22 +16,16 @@
 
 #include "process.hpp"
 #include "speed.hpp"
+#include "temp_dir.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-struct ScratchDir {
-  fs::path path;
-  ScratchDir() {
-    std::string t = (fs::temp_directory_path() / "ve_it_check_XXXXXX").string();
-    if (mkdtemp(t.data()) != nullptr) path = t;
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    if (!path.empty()) fs::remove_all(path, ec);
-  }
+/// A scratch folder, removed with the test.
+struct ScratchDir : ve::test::TempDir {
+  ScratchDir() : ve::test::TempDir("ve_it_check") {}
 };
 
 std::string source(const std::string& rel) { return std::string(VE_SOURCE_DIR) + "/" + rel; }

@@ -20,6 +20,7 @@
 #include "config/atomic_file.hpp"
 #include "core/sample.hpp"
 #include "replay/raw_log.hpp"
+#include "../integration/temp_dir.hpp"
 
 namespace {
 
@@ -27,16 +28,9 @@ namespace fs = std::filesystem;
 using ve::replay::RawLogReader;
 using ve::replay::RawLogWriter;
 
-struct Dir {
-  fs::path path;
-  Dir() {
-    std::string t = (fs::temp_directory_path() / "ve_bounds_XXXXXX").string();
-    if (mkdtemp(t.data()) != nullptr) path = t;
-  }
-  ~Dir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
+/// A scratch folder, removed with the test.
+struct Dir : ve::test::TempDir {
+  Dir() : ve::test::TempDir("ve_bounds") {}
 };
 
 std::size_t entries(const fs::path& dir) {
