@@ -200,16 +200,38 @@ void differentiate(const std::vector<double>& x, double ts, int m, std::vector<d
   const double mean_k2 = s2 / (2 * m + 1);
   double s4 = 0.0;
   for (int k = -m; k <= m; ++k) s4 += (k * k - mean_k2) * (k * k - mean_k2);
-  for (std::size_t i = static_cast<std::size_t>(m); i + static_cast<std::size_t>(m) < n; ++i) {
-    double c1 = 0.0, c2 = 0.0;
-    const double x0 = x[i];  // subtract for precision: positions are ~1 m, steps ~1 um
-    for (int k = -m; k <= m; ++k) {
-      const double d = x[i + static_cast<std::size_t>(k)] - x0;
-      c1 += k * d;
-      c2 += (k * k - mean_k2) * d;
+  // The window's sums A = sum y, B = sum k y, C = sum k^2 y slide by one sample
+  // in O(1) (c1 = B, c2 = C - M A: neither depends on a constant added to x).
+  // y = x - x_ref keeps them small (positions are ~1 m, steps ~1 um). The three
+  // recurrences feed each other (C takes B's rounding each step, B takes A's), so
+  // rounding grows with the square of the steps: the sums are started afresh
+  // every few window lengths (which costs about one operation per sample).
+  const auto mm = static_cast<std::size_t>(m);
+  const std::size_t kBlock = std::max<std::size_t>(32, 4 * mm);
+  const double md = m, mp = m + 1.0;
+  double x_ref = 0.0, A = 0.0, B = 0.0, C = 0.0;
+  for (std::size_t i = mm; i + mm < n; ++i) {
+    if ((i - mm) % kBlock == 0) {
+      x_ref = x[i];
+      A = B = C = 0.0;
+      for (int k = -m; k <= m; ++k) {
+        const double y = x[static_cast<std::size_t>(static_cast<std::ptrdiff_t>(i) + k)] - x_ref;
+        A += y;
+        B += k * y;
+        C += static_cast<double>(k) * k * y;
+      }
+    } else {
+      // From the window centred at i - 1: y_out leaves at k = -m, y_in enters at k = m + 1.
+      const double y_out = x[i - 1 - mm] - x_ref, y_in = x[i + mm] - x_ref;
+      const double a_new = A - y_out + y_in;
+      const double e = B + md * y_out + mp * y_in;          // sum (j - (i-1)) y over the new window
+      const double d = C - md * md * y_out + mp * mp * y_in;  // sum (j - (i-1))^2 y over the new window
+      A = a_new;
+      B = e - A;
+      C = d - 2.0 * e + A;
     }
-    v[i] = c1 / s2 / ts;
-    a[i] = 2.0 * c2 / s4 / (ts * ts);
+    v[i] = B / s2 / ts;
+    a[i] = 2.0 * (C - mean_k2 * A) / s4 / (ts * ts);
     valid[i] = 1;
   }
 }
@@ -430,21 +452,35 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   const double step = ts0 / 10.0;
   const int n_delays = static_cast<int>(std::floor(cfg.max_accel_delay_s / step)) + 1;
   if (have_dynamic) {
+    // The readings (less the frame's) side by side: the scan passes over every
+    // sample once per trial delay, and reading them out of the samples each time
+    // was most of a calibration's compute.
+    std::vector<std::vector<double>> reading(segments.size());
+    std::vector<std::vector<char>> reading_ok(segments.size());
+    for (std::size_t g = 0; g < segments.size(); ++g) {
+      const auto& ss = segments[g].samples;
+      reading[g].resize(ss.size());
+      reading_ok[g].resize(ss.size());
+      for (std::size_t i = 0; i < ss.size(); ++i) {
+        reading[g][i] = ss[i].accel_base_valid ? ss[i].accel_mps2 - ss[i].accel_base_mps2 : ss[i].accel_mps2;
+        reading_ok[g][i] = ss[i].accel_valid ? 1 : 0;
+      }
+    }
     for (int di = 0; di < n_delays; ++di) {
       const double delay = di * step;
       Regression r;
       for (std::size_t g = 0; g < segments.size(); ++g) {
-        const auto& seg = segments[g];
         const double shift = delay / kin[g].ts;
         const auto whole = static_cast<std::size_t>(std::floor(shift));
         const double frac = shift - static_cast<double>(whole);
-        for (std::size_t i = whole + 1; i < seg.samples.size(); ++i) {
+        const auto& ka = kin[g].a;
+        const auto& kv = kin[g].valid;
+        const auto& z = reading[g];
+        const auto& zok = reading_ok[g];
+        for (std::size_t i = whole + 1; i < z.size(); ++i) {
           const std::size_t j0 = i - whole, j1 = i - whole - 1;  // a(t - delay) between j1 and j0
-          if (!kin[g].valid[j0] || !kin[g].valid[j1] || !seg.samples[i].accel_valid) continue;
-          const double a = (1.0 - frac) * kin[g].a[j0] + frac * kin[g].a[j1];
-          double z = seg.samples[i].accel_mps2;
-          if (seg.samples[i].accel_base_valid) z -= seg.samples[i].accel_base_mps2;
-          r.add(a, z);
+          if (!kv[j0] || !kv[j1] || !zok[i]) continue;
+          r.add((1.0 - frac) * ka[j0] + frac * ka[j1], z[i]);
         }
       }
       double scale, bias, rms;

@@ -201,6 +201,40 @@ struct AccelFit {
   long dynamic_samples = 0;
 };
 
+/// Both sides of one segment through the derivative filter of half-width m: the
+/// position's acceleration (ar) and the accelerometer's (az), and the samples
+/// usable for the fit (use: no bridged or invalid sample within reach of the
+/// filter and the longest delay).
+struct FilteredSides {
+  std::vector<double> ar, az;
+  std::vector<char> use;
+};
+
+void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr, const std::vector<char>& bridged,
+                  double ts, int m, double max_delay_s, FilteredSides& out) {
+  const std::size_t n = s.size();
+  out.use.assign(n, 0);
+  out.ar.clear();
+  out.az.clear();
+  if (n < static_cast<std::size_t>(2 * m + 8)) return;
+  // Readings integrated twice, centred: zz[i+1] - 2 zz[i] + zz[i-1] = ts^2 z[i].
+  std::vector<double> zz(n, 0.0), v;
+  std::vector<char> ok_r, ok_z;
+  std::vector<long> bad(n + 1, 0);  // prefix count of bridged or invalid samples
+  double vel = 0.0, last = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (i > 0) zz[i] = zz[i - 1] + vel * ts;
+    if (s[i].accel_valid) last = accel_reading(s[i]);
+    vel += last * ts;
+    bad[i + 1] = bad[i] + ((!s[i].accel_valid || (!bridged.empty() && bridged[i])) ? 1 : 0);
+  }
+  differentiate(xr, ts, m, v, out.ar, ok_r);
+  differentiate(zz, ts, m, v, out.az, ok_z);
+  const auto reach = static_cast<std::size_t>(m) + 2 + static_cast<std::size_t>(std::ceil(max_delay_s / ts));
+  for (std::size_t i = reach; i + reach < n; ++i)
+    if (ok_r[i] && bad[i + reach + 1] == bad[i - reach]) out.use[i] = 1;
+}
+
 /// The accelerometer against the self-made position: reading(t) = scale * a(t - delay) + bias.
 /// Both sides go through the same filter: the position's acceleration is the
 /// Savitzky-Golay second derivative of the position, the accelerometer's is the same
@@ -210,78 +244,88 @@ struct AccelFit {
 /// (which would favour delays half a sample off). Samples whose position was itself
 /// bridged with the accelerometer (`bridged`) are left out: they would only find the
 /// accelerometer's own noise, at the delay the bridge used.
+///
+/// The delay comes from the identification's short filter (timing needs the
+/// bandwidth). The scale then comes from a long one (`scale_half_window_s`): the
+/// self-made position in fast motion carries the Hall solve's errors at the magnet
+/// frequency (a few um, tens of Hz and up), which the short filter passes as
+/// acceleration; noise in the regressor biases a least-squares scale low by its
+/// share of the variance (about 2 % on a 10-bit, 40 mm-pitch motor), while the
+/// calibration motion's own acceleration is far slower than the filter's cut-off.
 AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<std::vector<double>>& xr,
                            const std::vector<std::vector<char>>& bridged, const std::vector<double>& ts,
-                           const IdentificationConfig& ic) {
+                           const IdentificationConfig& ic, double scale_half_window_s) {
   AccelFit fit;
-  const int m = ic.derivative_half_window;
   const std::size_t ng = segments.size();
-  std::vector<std::vector<double>> ar(ng), az(ng);
-  std::vector<std::vector<char>> use(ng);
-  std::vector<double> v;
-  std::vector<char> ok_r, ok_z;
+  std::vector<FilteredSides> f(ng);
   for (std::size_t g = 0; g < ng; ++g) {
-    const auto& s = segments[g].samples;
-    const std::size_t n = s.size();
-    use[g].assign(n, 0);
-    if (n < static_cast<std::size_t>(2 * m + 8)) continue;
-    // Readings integrated twice, centred: zz[i+1] - 2 zz[i] + zz[i-1] = ts^2 z[i].
-    std::vector<double> zz(n, 0.0);
-    std::vector<long> bad(n + 1, 0);  // prefix count of bridged or invalid samples
-    double vel = 0.0, last = 0.0;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (i > 0) zz[i] = zz[i - 1] + vel * ts[g];
-      if (s[i].accel_valid) last = accel_reading(s[i]);
-      vel += last * ts[g];
-      bad[i + 1] = bad[i] + ((!s[i].accel_valid || (!bridged[g].empty() && bridged[g][i])) ? 1 : 0);
-    }
-    differentiate(xr[g], ts[g], m, v, ar[g], ok_r);
-    differentiate(zz, ts[g], m, v, az[g], ok_z);
-    const auto reach = static_cast<std::size_t>(m) + 2 +
-                       static_cast<std::size_t>(std::ceil(ic.max_accel_delay_s / ts[g]));
-    for (std::size_t i = reach; i + reach < n; ++i) {
-      if (!ok_r[i] || bad[i + reach + 1] != bad[i - reach]) continue;
-      use[g][i] = 1;
-      if (std::abs(ar[g][i]) >= ic.dynamic_min_accel_mps2) ++fit.dynamic_samples;
-    }
+    filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], ic.derivative_half_window, ic.max_accel_delay_s, f[g]);
+    for (std::size_t i = 0; i < f[g].use.size(); ++i)
+      if (f[g].use[i] && std::abs(f[g].ar[i]) >= ic.dynamic_min_accel_mps2) ++fit.dynamic_samples;
   }
   if (fit.dynamic_samples < ic.dynamic_min_samples) return fit;
+  // The reading at t + delay, interpolated between samples.
+  auto shifted = [](const std::vector<double>& z, std::size_t i, std::size_t whole, double frac) {
+    return (1.0 - frac) * z[i + whole] + frac * z[i + whole + 1];
+  };
+  // Least squares of the readings on the position's acceleration at one delay,
+  // over the fast motion only: the many slow samples carry no timing, only the
+  // reading's noise, which the interpolation lowers at fractional delays and so
+  // would pull the delay.
+  struct Line {
+    long n = 0;
+    double scale = 0.0, bias = 0.0, rms = std::numeric_limits<double>::infinity();
+  };
+  // The fast samples of each segment, listed once: the scan visits them per trial delay.
+  auto fast_samples = [&](const std::vector<FilteredSides>& sides) {
+    std::vector<std::vector<std::size_t>> idx(ng);
+    for (std::size_t g = 0; g < ng; ++g)
+      for (std::size_t i = 0; i < sides[g].use.size(); ++i)
+        if (sides[g].use[i] && std::abs(sides[g].ar[i]) >= ic.dynamic_min_accel_mps2) idx[g].push_back(i);
+    return idx;
+  };
+  auto regress = [&](const std::vector<FilteredSides>& sides, const std::vector<std::vector<std::size_t>>& fast,
+                     double delay) {
+    double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
+    Line l;
+    for (std::size_t g = 0; g < ng; ++g) {
+      const double shift = delay / ts[g];
+      const auto whole = static_cast<std::size_t>(std::floor(shift));
+      const double frac = shift - static_cast<double>(whole);
+      const auto& a = sides[g].ar;
+      for (const std::size_t i : fast[g]) {
+        if (i + whole + 1 >= a.size()) break;
+        const double x = a[i], y = shifted(sides[g].az, i, whole, frac);
+        sx += x, sy += y, sxx += x * x, sxy += x * y, syy += y * y, ++l.n;
+      }
+    }
+    if (l.n < 3) return l;
+    const double n = static_cast<double>(l.n);
+    const double mx = sx / n, my = sy / n, vxx = sxx / n - mx * mx, vxy = sxy / n - mx * my, vyy = syy / n - my * my;
+    if (!(vxx > 0.0)) {
+      l.n = 0;
+      return l;
+    }
+    l.scale = vxy / vxx;
+    l.bias = my - l.scale * mx;
+    l.rms = std::sqrt(std::max(0.0, vyy - vxy * vxy / vxx));
+    return l;
+  };
   const double ts0 = ts.empty() ? 0.0 : ts[0];
   const double step = ts0 / 10.0;
   const int n_delays = static_cast<int>(std::floor(ic.max_accel_delay_s / step)) + 1;
   std::vector<double> scan(static_cast<std::size_t>(n_delays), std::numeric_limits<double>::infinity());
   double best = std::numeric_limits<double>::infinity();
   int best_i = -1;
+  const auto fast = fast_samples(f);
   for (int di = 0; di < n_delays; ++di) {
-    const double delay = di * step;
-    double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
-    long cnt = 0;
-    for (std::size_t g = 0; g < ng; ++g) {
-      const double shift = delay / ts[g];
-      const auto whole = static_cast<std::size_t>(std::floor(shift));
-      const double frac = shift - static_cast<double>(whole);
-      const auto& a = ar[g];
-      const auto& z = az[g];
-      for (std::size_t i = 0; i + whole + 1 < a.size(); ++i) {
-        // Scale and delay from the fast motion only: the many slow samples carry
-        // no timing, only the reading's noise, which the interpolation lowers at
-        // fractional delays and so would pull the delay.
-        if (!use[g][i] || std::abs(a[i]) < ic.dynamic_min_accel_mps2) continue;
-        const double x = a[i];
-        const double y = (1.0 - frac) * z[i + whole] + frac * z[i + whole + 1];  // the reading at t + delay
-        sx += x, sy += y, sxx += x * x, sxy += x * y, syy += y * y, ++cnt;
-      }
-    }
-    if (cnt < 3) continue;
-    const double mx = sx / cnt, my = sy / cnt, vxx = sxx / cnt - mx * mx, vxy = sxy / cnt - mx * my,
-                 vyy = syy / cnt - my * my;
-    if (!(vxx > 0.0)) continue;
-    const double rms = std::sqrt(std::max(0.0, vyy - vxy * vxy / vxx));
-    scan[static_cast<std::size_t>(di)] = rms;
-    if (rms < best) {
-      best = rms, best_i = di;
-      fit.scale = vxy / vxx;
-      fit.bias = my - fit.scale * mx;
+    const Line l = regress(f, fast, di * step);
+    if (l.n < 3) continue;
+    scan[static_cast<std::size_t>(di)] = l.rms;
+    if (l.rms < best) {
+      best = l.rms, best_i = di;
+      fit.scale = l.scale;
+      fit.bias = l.bias;
     }
   }
   if (best_i < 0) return fit;
@@ -293,6 +337,16 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
     const double curv = y0 - 2.0 * y1 + y2;
     if (curv > 0.0) fit.delay_s += 0.5 * step * (y0 - y2) / curv;
   }
+  fit.residual_mps2 = best;
+  // The scale through the long filter, at that delay.
+  const int m_long = static_cast<int>(std::lround(scale_half_window_s / std::max(1e-9, ts0)));
+  if (m_long > ic.derivative_half_window) {
+    std::vector<FilteredSides> fl(ng);
+    for (std::size_t g = 0; g < ng; ++g)
+      filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], m_long, ic.max_accel_delay_s, fl[g]);
+    const Line l = regress(fl, fast_samples(fl), fit.delay_s);
+    if (l.n >= ic.dynamic_min_samples) fit.scale = l.scale;
+  }
   // The bias over every usable sample (the slow passes too).
   {
     double sum = 0.0;
@@ -301,15 +355,14 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
       const double shift = fit.delay_s / ts[g];
       const auto whole = static_cast<std::size_t>(std::floor(shift));
       const double frac = shift - static_cast<double>(whole);
-      for (std::size_t i = 0; i + whole + 1 < ar[g].size(); ++i) {
-        if (!use[g][i]) continue;
-        sum += (1.0 - frac) * az[g][i + whole] + frac * az[g][i + whole + 1] - fit.scale * ar[g][i];
+      for (std::size_t i = 0; i + whole + 1 < f[g].ar.size(); ++i) {
+        if (!f[g].use[i]) continue;
+        sum += shifted(f[g].az, i, whole, frac) - fit.scale * f[g].ar[i];
         ++cnt;
       }
     }
     if (cnt > 0) fit.bias = sum / static_cast<double>(cnt);
   }
-  fit.residual_mps2 = best;
   fit.ok = true;
   return fit;
 }
@@ -710,6 +763,27 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         xr[i] += v[k] * hall_delay + 0.5 * a[k] * hall_delay * hall_delay;
       }
     }
+    // The coil field follows the motor's force, i.e. the acceleration. Once the
+    // accelerometer is fitted it is the regressor: the self-made position's second
+    // derivative carries the Hall solve's own errors where a single sensor is out of
+    // saturation, and those errors are largest exactly where the coil field is
+    // misjudged, so regressing on them pulls the coil field low and the errors grow.
+    if (std::isfinite(accel_bias)) {
+      for (std::size_t g = 0; g < ng; ++g) {
+        const auto& s = work[g].samples;
+        const double lag = accel_lag_s / ts[g];
+        const auto whole = static_cast<long>(std::floor(lag));
+        const double frac = lag - static_cast<double>(whole);
+        const long n = static_cast<long>(s.size());
+        auto reading = [&](long j) {
+          const auto& smp = s[static_cast<std::size_t>(std::clamp(j, 0L, n - 1))];
+          return smp.accel_valid ? accel_reading(smp) : accel_bias;
+        };
+        for (long i = 0; i < n; ++i)
+          accel[g][static_cast<std::size_t>(i)] =
+              ((1.0 - frac) * reading(i + whole) + frac * reading(i + whole + 1) - accel_bias) / accel_scale;
+      }
+    }
 
     // The first pass knows positions only relative to its own segment: identify
     // from the sweep alone; later passes place every segment on the table.
@@ -730,7 +804,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     if (it > 0) {
       std::vector<std::vector<double>> xr(ng);
       for (std::size_t g = 0; g < ng; ++g) xr[g] = work[g].reference_m;
-      const AccelFit af = fit_accelerometer(segments, xr, bridged, ts, ic);
+      const AccelFit af = fit_accelerometer(segments, xr, bridged, ts, ic, cfg.accel_scale_half_window_s);
       if (af.ok) {
         cal.model.accel_scale = idrep.accel_scale = af.scale;
         cal.model.accel_bias_mps2 = idrep.accel_bias_mps2 = af.bias;

@@ -90,6 +90,12 @@ class SimSource final : public drivers::SensorSource {
   double hall_offset_tc_v_per_k(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].offset_tc_v_per_k; }
   /// Where sensor `sensor` really sits relative to the carriage (offset + placement error) [m].
   double sensor_position_m(int sensor) const { return sensors_[static_cast<std::size_t>(sensor)].position_m; }
+  /// The magnet track's scale over [lo_m, hi_m] of track coordinate: the slope of
+  /// a least-squares line through the magnet boundaries there against their
+  /// nominal places (j * pitch), minus 1. The track is the only length a
+  /// calibration without a ruler has; this is how far its placement errors make
+  /// it differ from the data sheet's pitch there.
+  double track_scale_error(double lo_m, double hi_m) const;
 
   const MotionProfile& profile() const { return profile_; }
   const core::MotorConfig& motor() const { return motor_; }

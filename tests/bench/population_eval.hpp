@@ -120,6 +120,7 @@ struct CalibrationOutcome {
   /// Where the calibration's position 0 lies in the simulator's frame: 0 with a
   /// ruler (the simulator is the ruler); without one, home (a track feature).
   double zero_m = 0.0;
+  bool with_ruler = true;
 };
 
 /// Home of a calibration without a ruler (sensor 0's first whole positive
@@ -155,6 +156,7 @@ inline bool record_population_calibration(const sim::PopulationMotor& p, std::ve
 inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor& p,
                                                      std::vector<core::ReferenceSegment> segments, bool with_ruler) {
   CalibrationOutcome o;
+  o.with_ruler = with_ruler;
   const auto t0 = std::chrono::steady_clock::now();
   if (with_ruler) {
     core::IdentificationReport rep;
@@ -192,6 +194,12 @@ struct RunResult {
   double detect_s = -1.0;       ///< fault probe: time from injection to the sensor's flag; < 0: never
   bool probe_flagged_before = false;  ///< fault probe: the sensor was flagged before it failed
   double window_s = 0.0;
+  /// Without a ruler: the position error an exact calibration would still have,
+  /// because the track is its only length (SimSource::track_scale_error over the
+  /// travel, times the distance from home), RMS over the window; and the product's
+  /// error with that part taken out, RMS (what the calibration and the estimator
+  /// add). Both 0 with a ruler.
+  double track_floor_rms_m = 0.0, beyond_floor_rms_m = 0.0;
   double valid_fraction() const { return samples ? static_cast<double>(valid) / samples : 0.0; }
 };
 
@@ -260,6 +268,10 @@ inline RunResult run_population_scenario(const sim::PopulationMotor& p, const Ca
   pc.start_position_known = true;
   pc.start_position_m = cfg.profile.start_m - c.zero_m;
   core::AxisPipeline pipeline(pc, c.cal.table);
+  // The scale of the sweep's stretch of track, which is all a calibration without
+  // a ruler can take its metre from.
+  const double track_scale = c.with_ruler ? 0.0 : src.track_scale_error(0.0, p.hardware.travel_m);
+  double floor_sq = 0.0, beyond_sq = 0.0;
   core::RawSample s;
   const std::uint32_t probe_bit = probe.inject ? 1u << probe.sensor : 0u;
   while (src.read(s) == drivers::ReadStatus::ok) {
@@ -275,6 +287,12 @@ inline RunResult run_population_scenario(const sim::PopulationMotor& p, const Ca
     r.err.add(e.position_m - (tr.position_m - c.zero_m), e.position_std_m, e.velocity_mps - tr.velocity_mps,
               e.velocity_std_mps, valid);
     ++r.samples;
+    {
+      const double floor = -track_scale * (tr.position_m - c.zero_m);
+      const double err = e.position_m - (tr.position_m - c.zero_m);
+      floor_sq += floor * floor;
+      beyond_sq += (err - floor) * (err - floor);
+    }
     if (valid) {
       ++r.valid;
       r.max_valid_error_m = std::max(r.max_valid_error_m, std::abs(e.position_m - (tr.position_m - c.zero_m)));
@@ -282,6 +300,10 @@ inline RunResult run_population_scenario(const sim::PopulationMotor& p, const Ca
   }
   r.ok = r.samples > 0;
   if (!r.ok) r.error = "no sample in the window";
+  if (r.ok) {
+    r.track_floor_rms_m = std::sqrt(floor_sq / static_cast<double>(r.samples));
+    r.beyond_floor_rms_m = std::sqrt(beyond_sq / static_cast<double>(r.samples));
+  }
   return r;
 }
 

@@ -197,7 +197,7 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
     SCOPED_TRACE(o.summary);
     ASSERT_TRUE(o.ok) << o.error;
     EXPECT_EQ(o.position_failed, 0);
-    EXPECT_LE(std::abs(o.accel_scale_rel_err), 0.005);
+    EXPECT_LE(std::abs(o.accel_scale_rel_err), 0.001);
     good += o.good ? 1 : 0;
     accurate += o.position_rms_m <= 2e-6 ? 1 : 0;
     if (targets) {
@@ -208,6 +208,26 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
   std::printf("[ summary  ] %zu motors: %zu calibrated, %d good, %d within 2 um RMS\n", all.size(),
               static_cast<std::size_t>(std::count_if(all.begin(), all.end(), [](const Outcome& o) { return o.ok; })),
               good, accurate);
+}
+
+/// Motor 11 (40 mm pitch, 10-bit ADC, 2.4 mV/(m/s^2) of coil field): in fast
+/// motion its Hall solve errs by tens of um wherever the coil field is misjudged
+/// and a single sensor is out of saturation. The coil field regressed on the
+/// self-made position's own acceleration was pulled low by those errors, which
+/// grew with it: the accelerometer's scale went 0.63, 0.20, ... 0.08 and every
+/// moving scenario lost the track. The coil field is now regressed on the
+/// accelerometer, and the scale fitted through a filter that the Hall solve's
+/// errors at the magnet frequency do not pass (they biased it 1.7 % low).
+TEST(SelfCalibrationPopulation, TheCoilFieldAndTheAccelerometerScaleDoNotFeedEachOther) {
+  const Outcome o = calibrate(11, tuning());
+  SCOPED_TRACE(o.summary);
+  for (const auto& l : o.iterations) std::printf("[ iteration] %s\n", l.c_str());
+  ASSERT_TRUE(o.ok) << o.error;
+  EXPECT_LE(std::abs(o.accel_scale_rel_err), 0.001);
+  EXPECT_LE(std::abs(o.accel_delay_err_s), 100e-6);
+  EXPECT_EQ(o.position_failed, 0);
+  // Converged: no problem says the iterations did not settle.
+  for (const auto& pr : o.problems) EXPECT_EQ(pr.find("did not settle"), std::string::npos) << pr;
 }
 
 }  // namespace
