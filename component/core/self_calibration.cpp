@@ -734,14 +734,19 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     rep.periods = static_cast<int>(std::floor(rep.swept_m / motor.magnet_pitch_m + 1e-6));
 
     // Convergence: how far the estimate moved since the last iteration (RMS over
-    // every segment, in the same frame: both have their zero at the sweep's start).
+    // every segment, in the same frame: both have their zero at the sweep's start),
+    // where it is made of the lines and the Hall positions. The turnarounds bridged
+    // with the accelerometer are left out: they are good to tens of um only, and
+    // their bridges can alternate by a sample's worth between two iterations for
+    // ever (what they depend on, the accelerometer's scale, is judged on its own).
     {
       double sq = 0.0;
       long n = 0;
       for (std::size_t g = 0; g < ng; ++g) {
         const auto& xr = work[g].reference_m;
         if (prev_xr[g].size() == xr.size())
-          for (std::size_t i = 0; i < xr.size(); i += 7) sq += (xr[i] - prev_xr[g][i]) * (xr[i] - prev_xr[g][i]), ++n;
+          for (std::size_t i = 0; i < xr.size(); i += 7)
+            if (bridged[g].empty() || !bridged[g][i]) sq += (xr[i] - prev_xr[g][i]) * (xr[i] - prev_xr[g][i]), ++n;
         prev_xr[g] = xr;
       }
       change_m = n > 0 ? std::sqrt(sq / static_cast<double>(n)) : std::numeric_limits<double>::infinity();
