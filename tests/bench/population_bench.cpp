@@ -362,7 +362,8 @@ int main(int argc, char** argv) {
          << f("%.1f", d.empty() ? NAN : *std::max_element(d.begin(), d.end())) << " ms.\n";
     }
   }
-  md << "\n![position RMS per motor](population.svg)\n\n## Motors\n\n";
+  md << "\n![position RMS per motor](" << (o.temperature_signal ? "population-temperature-signal" : "population")
+     << ".svg)\n\n## Motors\n\n";
   for (const auto& r : results) md << "* " << r.motor.summary() << (r.note.empty() ? "" : " -- " + r.note) << "\n";
   std::printf("%s", md.str().c_str());
 
@@ -376,7 +377,8 @@ int main(int argc, char** argv) {
     std::filesystem::rename(path + ".tmp", path, ec);
     std::fprintf(stderr, "written: %s%s\n", path.c_str(), ec ? (" FAILED: " + ec.message()).c_str() : "");
   };
-  write("population.md", md.str());
-  write("population.svg", make_svg(results, o.first_seed));
+  const std::string stem = o.temperature_signal ? "population-temperature-signal" : "population";
+  write(stem + ".md", md.str());
+  write(stem + ".svg", make_svg(results, o.first_seed));
   return ec ? 1 : 0;
 }
