@@ -60,6 +60,9 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
       for (double p : s.period_pitch_m) lo = std::min(lo, p), hi = std::max(hi, p), sum += p;
       line("  magnet periods (sensor 0): %zu, pitch %.4f mm mean, %.4f .. %.4f mm\n", s.period_pitch_m.size(),
            sum / s.period_pitch_m.size() * 1e3, lo * 1e3, hi * 1e3);
+      line("  the track's scale is good to %.2f ppm (1 sigma): magnets placed to %.1f um, so the position may be off "
+           "by %.2f um per 100 mm from home, which sigma includes; a ruler (or one known length) removes it\n",
+           s.track_scale_std * 1e6, s.magnet_placement_std_m * 1e6, s.track_scale_std * 0.1 * 1e6);
     }
     std::string geo;
     for (std::size_t i = 0; i < s.sensor_offset_m.size(); ++i) {

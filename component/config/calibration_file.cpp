@@ -205,6 +205,8 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     model("frame_vibration_mps2", cal.model.frame_vibration_mps2, 0.0, 1000.0, "m/s^2");
     // Optional: only when the sensor node reported its temperature during calibration.
     model("temperature_c", cal.model.temperature_c, -60.0, 200.0, "deg C");
+    // Optional: only from a calibration without a ruler.
+    model("track_scale_std", cal.model.track_scale_std, 0.0, 0.01, "");
   }
   const Value table = root.required("table");
   if (table.present()) read_table(table.as_map(), cal.table, info.hall_count, expected);
@@ -363,6 +365,10 @@ std::string format_calibration(const core::Calibration& cal) {
       std::snprintf(buf, sizeof buf, "  temperature_c: %.3f         # the sensor node's mean temperature during calibration\n",
                     m.temperature_c);
       out += buf;
+    }
+    if (m.track_scale_std > 0.0) {
+      out += "  track_scale_std: " + schema::format_number(m.track_scale_std) +
+             "   # no ruler: one sigma of the table's scale; sigma grows by it per m from home\n";
     }
   }
   out += "table:\n";

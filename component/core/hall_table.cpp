@@ -72,6 +72,7 @@ std::string calibration_checksum(const HallTable& table, const SensorModel& mode
   mix_rounded(model.frame_vibration_mps2, 1e-7);
   // Only when recorded, so that files without it keep their checksum.
   if (std::isfinite(model.temperature_c)) mix_rounded(model.temperature_c, 1e-3);
+  if (model.track_scale_std > 0.0) mix_rounded(model.track_scale_std, 1e-10);
   static const char* kHex = "0123456789abcdef";
   std::string out(16, '0');
   for (int i = 15; i >= 0; --i) {

@@ -63,6 +63,12 @@ struct SensorModel {
   /// not reported. With it and a reported temperature while running, the Hall
   /// adaptation knows how far the motor is from its calibration (hall_adaptation.hpp).
   double temperature_c = std::numeric_limits<double>::quiet_NaN();
+  /// How far the table's length scale may be from the true metre, one sigma
+  /// (dimensionless). 0 with a ruler: the ruler set the scale. Without one the
+  /// magnet track is the only length, and its magnets' placement errors make its
+  /// scale uncertain (self_calibration.hpp); the position's sigma grows by this
+  /// times the distance from position 0 (home).
+  double track_scale_std = 0.0;
 };
 
 /// Block K tuning (the paper's Kalman filter on [x, v, a], extended).

@@ -430,8 +430,13 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // second): a sensor is not blamed while the array has just disagreed without one.
   disagreement_hold_m2_ = std::max(disagreement_seen_m2_, disagreement_hold_m2_ * hold_decay_);
   disagreement_seen_m2_ = 0.0;
-  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + drift_var_m2_);
-  out_.velocity_std_mps = std::sqrt(kf_.velocity_variance());
+  // Without a ruler the table's scale is the magnet track's own, known to
+  // track_scale_std: an error in proportion to the distance from home (position 0).
+  const double scale_m = cfg_.sensors.track_scale_std * out_.position_m;
+  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + drift_var_m2_ +
+                                  scale_m * scale_m);
+  const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
+  out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 
   // A bias far from its calibrated value: the accelerometer has changed (it is still

@@ -891,6 +891,20 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   // The position residual in fast motion is against the self-made estimate, which
   // came from these Halls: it checks consistency, not accuracy.
   table_geometry(motor, out.table, rep.sensor_offset_m, rep.period_start_m, rep.period_pitch_m);
+  // The track's scale, as well as its magnets' placement lets it be known (see the header).
+  if (rep.period_pitch_m.size() >= 3) {
+    const auto& pp = rep.period_pitch_m;
+    double mean = 0.0;
+    for (double p : pp) mean += p;
+    mean /= static_cast<double>(pp.size());
+    double var = 0.0;
+    for (double p : pp) var += (p - mean) * (p - mean);
+    var /= static_cast<double>(pp.size() - 1);
+    rep.magnet_placement_std_m = std::sqrt(0.5 * var);
+    const double n = static_cast<double>(pp.size() + 1);  // magnets (boundaries) on the line
+    rep.track_scale_std = rep.magnet_placement_std_m / (motor.magnet_pitch_m * std::sqrt(n * (n * n - 1.0) / 12.0));
+    out.model.track_scale_std = std::min(rep.track_scale_std, 0.01);
+  }
   char buf[320];
   if (!hall_given && !accel_given) {
     r.problems.push_back(

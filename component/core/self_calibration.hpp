@@ -47,7 +47,9 @@
 //    data sheet): `hall_delay_s` or `accel_delay_s` below.
 //  - The scale beyond the nominal pitch: the mean pitch over the travel is taken
 //    as nominal; with N periods placed with errors of sigma each, the scale is
-//    good to about sigma * sqrt(3) / (N^1.5 * pitch).
+//    good to about sigma * sqrt(12) / (N^1.5 * pitch). sigma is measured from the
+//    scatter of the periods' pitches, and that scale uncertainty goes into the
+//    calibration (track_scale_std), so that the position's sigma says it.
 // Pure computation on vectors held in memory; no I/O. The reference column of the
 // segments, when there is one, is never read.
 #pragma once
@@ -107,6 +109,13 @@ struct SelfCalibrationReport {
   /// Each magnet period's pitch along the travel (sensor 0's rising crossings) [m].
   std::vector<double> period_start_m;
   std::vector<double> period_pitch_m;
+  /// The magnets' placement scatter, one sigma, from the pitches' (a pitch is the
+  /// difference of two placements: sigma of the pitches / sqrt 2) [m], and what it
+  /// leaves of the track's scale: a least-squares line through N magnets placed
+  /// that well has a slope good to sigma / (pitch sqrt(N (N^2 - 1) / 12)). That is
+  /// the calibration's scale (it is the track's), written as track_scale_std.
+  double magnet_placement_std_m = 0.0;
+  double track_scale_std = 0.0;
   /// Each sensor's position on the carriage relative to sensor 0 (from the tables) [m].
   std::vector<double> sensor_offset_m;
   /// Home (position 0 of the calibration, see the top of this file) measured from

@@ -115,6 +115,31 @@ TEST_F(CalibrationFile, RoundTripIsExactToOneMicrovolt) {
   EXPECT_TRUE(others("x.cal.yaml").empty());
 }
 
+TEST_F(CalibrationFile, ARulerLessCalibrationKeepsItsScaleUncertainty) {
+  // Absent from a calibration with a ruler: the file and its checksum are as before.
+  EXPECT_EQ(slurp(write_good("ruler.cal.yaml")).find("track_scale_std"), std::string::npos);
+  cal_.info.method = "no-reference";
+  cal_.model.track_scale_std = 12.345678e-6;
+  cal_.info.id = core::calibration_checksum(cal_);
+  core::Calibration ruler = cal_;
+  ruler.model.track_scale_std = 0.0;
+  EXPECT_NE(core::calibration_checksum(ruler), cal_.info.id);  // part of what the id names
+  const CalibrationLoad r = load_calibration_file(write_good(), motor_);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  EXPECT_NEAR(r.calibration.model.track_scale_std, 12.345678e-6, 1e-15);
+  EXPECT_EQ(core::calibration_checksum(r.calibration), cal_.info.id);
+  // Out of its range: refused with the key.
+  const std::string p = path("x.cal.yaml");
+  std::string text = slurp(p);
+  const auto at = text.find("track_scale_std: ");
+  ASSERT_NE(at, std::string::npos);
+  text.replace(at, text.find(' ', at + 17) - at, "track_scale_std: 0.5");
+  spit(p, text);
+  const CalibrationLoad bad = load_calibration_file(p, motor_);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(to_string(bad.errors).find("sensor_model.track_scale_std"), std::string::npos) << to_string(bad.errors);
+}
+
 TEST_F(CalibrationFile, RoundTripOfAnOddTable) {
   // Negative values, a non-zero start and a grid that is not a power of two.
   cal_.table.start_m = -0.0123456789;

@@ -45,6 +45,8 @@ struct Outcome {
   double sensor_offset_max_err_m = 0.0;
   double position_rms_m = 0.0, position_max_m = 0.0, position_bias_m = 0.0;
   double position_worst_at_m = 0.0;  ///< where (simulator's frame)
+  double track_scale_std = 0.0;      ///< what the calibration says its scale is good to
+  double track_scale_true = 0.0;     ///< the simulated track's scale error over the travel
   int position_failed = 0;  ///< noiseless checks with no usable fix
 };
 
@@ -130,6 +132,8 @@ Outcome calibrate(std::uint64_t seed, const ve::core::FilterConfig& filter) {
   o.accel_delay_err_s = cal.model.accel_delay_s - im.accel_delay_s;
   ve::sim::SimSource sim(p.hardware, truth_config(p));
   EXPECT_TRUE(sim.ok()) << sim.last_error();
+  o.track_scale_std = cal.model.track_scale_std;
+  o.track_scale_true = sim.track_scale_error(0.0, p.hardware.travel_m);
   for (int s = 1; s < p.datasheet.hall.count && s < static_cast<int>(rep.sensor_offset_m.size()); ++s) {
     const double truth = sim.sensor_position_m(s) - sim.sensor_position_m(0);
     o.sensor_offset_max_err_m =
@@ -180,13 +184,14 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
     std::fflush(stdout);
   }
   std::printf("[ table    ] seed ok good  time_s  pos_rms_um pos_bias_um pos_max_um at_mm fails  scale_err_%% bias_err "
-              "delay_err_us hall_delay_repr_err_us sensor_max_err_um\n");
+              "delay_err_us hall_delay_repr_err_us sensor_max_err_um scale_std_ppm scale_true_ppm\n");
   for (const auto& o : all)
-    std::printf("[ table    ] %4llu %2d %4d %7.2f %11.3f %11.3f %10.3f %6.1f %5d %12.4f %8.4f %12.1f %22.2f %17.2f\n",
+    std::printf("[ table    ] %4llu %2d %4d %7.2f %11.3f %11.3f %10.3f %6.1f %5d %12.4f %8.4f %12.1f %22.2f %17.2f %13.2f %14.2f\n",
                 static_cast<unsigned long long>(o.seed), o.ok ? 1 : 0, o.good ? 1 : 0, o.seconds,
                 o.position_rms_m * 1e6, o.position_bias_m * 1e6, o.position_max_m * 1e6, o.position_worst_at_m * 1e3, o.position_failed,
                 o.accel_scale_rel_err * 100.0, o.accel_bias_err, o.accel_delay_err_s * 1e6,
-                o.hall_delay_reproduced_err_s * 1e6, o.sensor_offset_max_err_m * 1e6);
+                o.hall_delay_reproduced_err_s * 1e6, o.sensor_offset_max_err_m * 1e6, o.track_scale_std * 1e6,
+                o.track_scale_true * 1e6);
   // Met on every motor so far: no refusal, a table that solves everywhere, the
   // accelerometer's scale. The targets not met on every motor yet (verdict good,
   // Hall position within 2 um RMS over the whole travel) are counted here and
@@ -198,6 +203,10 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
     ASSERT_TRUE(o.ok) << o.error;
     EXPECT_EQ(o.position_failed, 0);
     EXPECT_LE(std::abs(o.accel_scale_rel_err), 0.001);
+    // The scale the calibration cannot know, it says it does not know: the track's
+    // true scale error within 4 of its sigma (over the 20 motors the ratio is 1.0 RMS).
+    EXPECT_GT(o.track_scale_std, 0.0);
+    EXPECT_LE(std::abs(o.track_scale_true), 4.0 * o.track_scale_std);
     good += o.good ? 1 : 0;
     accurate += o.position_rms_m <= 2e-6 ? 1 : 0;
     if (targets) {
