@@ -40,7 +40,10 @@
 #    of the stage (BadInputFiles.CalibrationFiles alone 67 s). ASan/UBSan is the
 #    sanitizer that judges that parsing, and the fuzzers cover the same parsers.
 #    BadInput/Signal.* and BadInput/DiskError.* stay: they signal or starve running
-#    subcommands (run, monitor, record, calibrate), whose threads TSan does judge.
+#    subcommands (run, monitor, record, calibrate), whose threads TSan does judge;
+#  - the calibrations without a ruler, SelfCalibration.* and SelfCalibrationPopulation.*:
+#    pure computation of the core on the test's one thread (no thread is started), which
+#    TSan slowed to 20-205 s each (530 s of the stage's CPU) with nothing to judge.
 # Every sanitizer report fails the stage, including one from a child process that a test
 # stopped or whose exit code it does not look at: reports go to $BUILD/sanitizer-logs/
 # and any file there fails the run.
@@ -89,6 +92,7 @@ security='DdsSecurity\..*'
 if [ "$kind" = tsan ]; then
   exclude="$exclude|$security|PublisherKill\..*|BadInputFiles\..*|BadInputCli\..*"
   exclude="$exclude|BadInput/CommandLine\..*|BadInput/CommandLineValue\..*|BadInput/Help\..*"
+  exclude="$exclude|SelfCalibration\..*|SelfCalibrationPopulation\..*"
 fi
 ctest --test-dir "$build" --output-on-failure --timeout 600 --parallel "$(nproc)" -L "$labels" -LE 'vm|interop' \
   -E "^($exclude)\$" "$@" || status=1
