@@ -1,4 +1,4 @@
-# The README's service recipe, followed into a scratch root OUT instead of /:
+# The service recipe (docs/service.md), followed into a scratch root OUT instead of /:
 #   cmake --install build --prefix OUT/usr
 #   deploy/install-machine.sh --root OUT OUT/usr/share/virtual-encoder/config/machines/sim.yaml
 # The machine file the unit runs (OUT/etc/virtual-encoder/machine.yaml) must then pass

@@ -85,7 +85,7 @@ double to_ms(const eprosima::fastrtps::Duration_t& d) {
 }
 
 // Built-in QoS: the same values as deploy/dds-profiles.xml, used when the
-// profiles are not loaded. Reasons: README.md, "DDS interface".
+// profiles are not loaded. Reasons: docs/dds-interface.md.
 
 // Liveliness AUTOMATIC: the participant asserts it; a lease of 1 s offered, 2 s
 // requested (offered <= requested), announcements every 0.5 s (< lease, or Fast

@@ -59,7 +59,7 @@ inline constexpr const char* kCalibrationStatusReader = "ve_calibration_status_r
 /// ve_udp descriptor and ve_state_reader in deploy/dds-profiles.xml). Sized so that
 /// a reader descheduled for tens of ms loses nothing of the state stream (3 axes x
 /// 4 kHz = 12,000 datagrams/s on one socket, about 1.3 KiB of kernel buffer each):
-/// see README.md, "DDS interface". The product has no shared-memory transport
+/// see docs/dds-interface.md. The product has no shared-memory transport
 /// (crash isolation: component/app/dds_io.cpp, udp_only(); docs/dds-integration.md).
 namespace transport {
 /// SO_RCVBUF asked for (the kernel doubles it, capped at net.core.rmem_max): with

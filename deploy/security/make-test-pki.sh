@@ -20,7 +20,7 @@
 # are rewritten and signed again only when their content changes. Quiet unless it fails.
 #
 # This is a test PKI: the CA key lies next to what it signs. For production, use your
-# own CA (kept offline), with the same governance and permissions (see README.md).
+# own CA (kept offline), with the same governance and permissions (see docs/dds-security.md).
 set -euo pipefail
 
 usage() { echo "usage: $0 OUTDIR [PROFILES_XML]" >&2; exit 2; }

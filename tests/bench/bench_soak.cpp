@@ -677,7 +677,7 @@ int run(const Options& opt) {
         "subscriber's UDP socket, whose receive buffer (Linux default 208 KiB, about 166 datagrams = 14 ms of the "
         "3-axis stream) overflowed while the subscriber's receive thread was descheduled; the publisher wrote every "
         "sample. The product's transports now ask for 4 MiB socket buffers and an 8192-message shared-memory port "
-        "queue (deploy/dds-profiles.xml, README.md \"DDS interface\").\n\n";
+        "queue (deploy/dds-profiles.xml, docs/dds-interface.md).\n\n";
   md += fmt("Host: %s. Run: %.1f min, a row every %.0f s, warm-up %.0f s. The host load column is the 1-minute load "
             "average of the whole host (other work included): gaps, misses and the latency tail follow it.\n\n",
             host_line().c_str(), opt.minutes, opt.interval_s, opt.warmup_s);

@@ -43,7 +43,7 @@ TEST_P(PopulationMotor, WithARulerMeetsTheTargetsInEveryScenarioAndFlagsADeadSen
     ASSERT_GT(r.samples, 100u) << sc.name;
     // The target with a ruler for position (RMS, bias included); the
     // paper's spec for velocity (the 0.1 mm/s target is not met everywhere yet:
-    // see the README's population table).
+    // see the population table in docs/accuracy.md).
     EXPECT_LE(r.err.position_m.rms(), 0.5e-6) << sc.name;
     EXPECT_LE(r.err.velocity_mps.rms(), 1.7e-3) << sc.name;
     EXPECT_EQ(r.valid, r.samples) << sc.name << ": VALID for the whole window";
