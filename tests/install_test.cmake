@@ -12,7 +12,9 @@ foreach(f
     usr/share/virtual-encoder/install-machine.sh
     usr/share/virtual-encoder/config/machines/sim.yaml
     usr/share/virtual-encoder/config/motors/sim-12mm.yaml
-    usr/share/doc/virtual-encoder/README.md)
+    usr/share/doc/virtual-encoder/README.md
+    usr/share/doc/virtual-encoder/docs/service.md
+    usr/share/doc/virtual-encoder/docs/configuration.md)
   if(NOT EXISTS "${OUT}/${f}")
     message(FATAL_ERROR "missing after install: ${f}")
   endif()
