@@ -14,6 +14,40 @@
 //    permissions, so it reads nothing and its calibration command is never acted on.
 // "Nothing arrives" is asserted over generous windows in which the permitted
 // participants of the same run did receive.
+//
+// Joining, and Fast DDS 2.9.1 (Debian 12's libfastrtps). Its SecurityManager
+// (src/cpp/rtps/security/SecurityManager.cpp) does resend a lost handshake message:
+// discovered_participant() arms a TimedEvent per remote participant whose callback,
+// resend_handshake_message_token(), re-sends the last request or reply and returns
+// true (rearm); on_process_handshake() doubles its period at each step (500 ms ->
+// 1 s), with no limit on the number of resends (2.9 has no max_handshake_requests);
+// a repeated request makes the replier resend its reply and a repeated reply makes
+// the requester resend its final message (process_participant_stateless_message),
+// and the crypto tokens travel on a reliable writer. A lost datagram costs about 1 s.
+// What 2.9.1 does not survive is a data race: match_builtin_endpoints() and
+// match_builtin_key_exchange_endpoints() fill ONE shared temporary Reader/WriterProxyData
+// per participant (temp_stateless_*_proxy_data_, temp_volatile_*_proxy_data_) without a
+// lock, and a participant calls them from its receive threads (UDP multicast, UDP
+// unicast, shared memory) when it discovers or authenticates two participants at
+// once. The loser's handshake or key-exchange endpoint can then be matched with another
+// participant's GUID or locators; every resend goes the same wrong way, and that pair
+// never finishes. Seen here: a `monitor --csv` that met four secure participants at once
+// logged "Attempting to add existing reader, updating information" (a writer's
+// matched_reader_add() given a GUID it already had) and then only "No key material yet"
+// (it held the encoder's crypto handles without their tokens) for 60 s. Upstream
+// fixed it in 2.9.2 (eProsima/Fast-DDS#3373, "Replaced SecurityManager temporary
+// ProxyDatas with ProxyPools"); Debian 12 ships 2.9.1. A new participant (a new GUID)
+// is matched afresh. This process' secure participants also meet each other (their GUID
+// prefixes are derived from their certificates by PKI-DH, so Fast DDS' FILTER_SAME_PROCESS
+// does not recognise them). The product's `monitor --csv` of the first test meets four
+// at once and is started once more if it does not receive (see there). The calibration test
+//  - lets its participants join one at a time, the permitted monitor first, each once the
+//    previous one is done with the encoder: the encoder (the product) never handshakes
+//    with two of them at once, and the monitor meets only the encoder when it joins;
+//  - re-creates once, with a note and what it saw, one of its own participants that has
+//    not finished with the encoder within the wait (join_once_more below): a joining
+//    participant still meets the encoder and this process' earlier ones at once (the
+//    intruder: the encoder and the monitor). Twice is a failure.
 #include <gtest/gtest.h>
 
 #include <stdlib.h>
@@ -21,9 +55,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <sstream>
 #include <utility>
@@ -295,15 +333,39 @@ class Peer {
   }
 
   /// Participants outside `local` that authenticated this one and accepted its permissions.
-  int admitted_by_others(std::initializer_list<Peer*> local) {
+  int admitted_by_others(const std::vector<const Peer*>& local) {
     std::lock_guard<std::mutex> lock(participant_listener_.mutex);
-    int n = 0;
-    for (const auto& prefix : participant_listener_.authorized) {
-      bool is_local = false;
-      for (const auto* p : local) is_local = is_local || p->participant_->guid().guidPrefix == prefix;
-      if (!is_local) ++n;
-    }
-    return n;
+    return outside(participant_listener_.authorized, local);
+  }
+
+  /// Participants outside `local` this one discovered.
+  int discovered_others(const std::vector<const Peer*>& local) {
+    std::lock_guard<std::mutex> lock(participant_listener_.mutex);
+    return outside(participant_listener_.discovered, local);
+  }
+
+  /// What this participant saw of the others (in this test: of the product's
+  /// participants), with the seconds since it was created: for the notes and failures.
+  std::string report() {
+    std::lock_guard<std::mutex> lock(participant_listener_.mutex);
+    const auto list = [](const std::vector<ParticipantListener::Event>& v) {
+      std::string s;
+      for (const auto& [prefix, at] : v) {
+        char t[32];
+        std::snprintf(t, sizeof t, " @%.1fs", std::chrono::duration<double>(at).count());
+        std::ostringstream g;
+        g << prefix;
+        s += (s.empty() ? "" : ",") + (" " + g.str()) + t;
+      }
+      return s.empty() ? std::string(" none") : s;
+    };
+    std::ostringstream out;
+    out << participant_->get_qos().name().to_string() << " (" << participant_->guid().guidPrefix
+        << "): discovered" << list(participant_listener_.discovered) << "; authenticated and accepted"
+        << list(participant_listener_.authorized) << "; refused" << list(participant_listener_.refused)
+        << "; matched: state writers " << listener_.state_matched.load() << ", status writers "
+        << listener_.status_matched.load() << ", command readers " << writer_listener_.matched.load();
+    return out.str();
   }
 
   bool send(std::uint32_t command, std::uint64_t request, double sweep_speed = 0.0) {
@@ -340,14 +402,25 @@ class Peer {
 
  private:
   struct ParticipantListener : fdds::DomainParticipantListener {
+    using Event = std::pair<eprosima::fastrtps::rtps::GuidPrefix_t, std::chrono::steady_clock::duration>;
+    void on_participant_discovery(fdds::DomainParticipant*,
+                                  eprosima::fastrtps::rtps::ParticipantDiscoveryInfo&& info) override {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (info.status == eprosima::fastrtps::rtps::ParticipantDiscoveryInfo::DISCOVERED_PARTICIPANT)
+        discovered.emplace_back(info.info.m_guid.guidPrefix, std::chrono::steady_clock::now() - created);
+    }
     void onParticipantAuthentication(fdds::DomainParticipant*,
                                      eprosima::fastrtps::rtps::ParticipantAuthenticationInfo&& info) override {
       std::lock_guard<std::mutex> lock(mutex);
+      const Event e{info.guid.guidPrefix, std::chrono::steady_clock::now() - created};
       if (info.status == eprosima::fastrtps::rtps::ParticipantAuthenticationInfo::AUTHORIZED_PARTICIPANT)
-        authorized.push_back(info.guid.guidPrefix);
+        authorized.push_back(e);
+      else
+        refused.push_back(e);
     }
+    const std::chrono::steady_clock::time_point created = std::chrono::steady_clock::now();
     std::mutex mutex;
-    std::vector<eprosima::fastrtps::rtps::GuidPrefix_t> authorized;
+    std::vector<Event> discovered, authorized, refused;
   };
   struct ReaderListener : fdds::DataReaderListener {
     void on_data_available(fdds::DataReader* reader) override {
@@ -383,6 +456,17 @@ class Peer {
     std::atomic<int> matched{0};
   };
 
+  template <class Events>
+  static int outside(const Events& events, const std::vector<const Peer*>& local) {
+    int n = 0;
+    for (const auto& [prefix, at] : events) {
+      bool is_local = false;
+      for (const auto* p : local) is_local = is_local || p->participant_->guid().guidPrefix == prefix;
+      if (!is_local) ++n;
+    }
+    return n;
+  }
+
   fdds::DomainParticipant* participant_ = nullptr;
   fdds::Topic* state_topic_ = nullptr;
   fdds::Topic* command_topic_ = nullptr;
@@ -404,6 +488,36 @@ std::size_t csv_rows(const std::string& log) {
   for (std::string line; std::getline(in, line);)
     if (line.rfind(std::to_string(kAxis) + ",", 0) == 0 && std::count(line.begin(), line.end(), ',') == 13) ++n;
   return n;
+}
+
+/// Creates one of this process' participants with `make` and waits until `done` says its
+/// handshake (and what follows) with the encoder is over. If it is not within the wait,
+/// says so with what the participant saw and creates it once more: a new participant
+/// (a new GUID), which Fast DDS 2.9.1 matches afresh (the race at the top of this file).
+/// Null, with a failure recorded, when `make` fails or the second one does not finish either.
+std::unique_ptr<Peer> join_once_more(const std::string& who, const std::function<std::unique_ptr<Peer>()>& make,
+                                     const std::function<bool(Peer&)>& done, const ChildProcess& encoder) {
+  const std::chrono::milliseconds wait = ve::test::patience(30s);  // about 30 handshake resends
+  for (int attempt = 1; attempt <= 2; ++attempt) {
+    std::unique_ptr<Peer> peer = make();
+    if (peer == nullptr) return nullptr;  // make() recorded why
+    if (wait_until([&] { return done(*peer); }, wait)) {
+      if (attempt == 2) std::printf("[ note     ] %s: the second participant finished\n", who.c_str());
+      return peer;
+    }
+    if (attempt == 2) {
+      ADD_FAILURE() << who << ": not done with the encoder within " << wait.count() / 1000
+                    << " s, twice (two participants, two GUIDs): "
+                    << peer->report() << "\n" << encoder.log();
+      return nullptr;
+    }
+    std::printf("[ note     ] %s: not done with the encoder within %lld s; it is re-created once (a new GUID), "
+                "as Fast DDS 2.9.1 can leave a pair that met another participant at the same time unmatched "
+                "for good (top of dds_security_test.cpp). It saw: %s\n",
+                who.c_str(), static_cast<long long>(wait.count() / 1000), peer->report().c_str());
+    std::fflush(stdout);
+  }
+  return nullptr;
 }
 
 std::vector<std::string> run_args(const fs::path& machine, int domain) {
@@ -435,19 +549,40 @@ TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
   Peer monitor(domain, "monitor", pki.properties("monitor"));
   ASSERT_TRUE(monitor.ok());
   ASSERT_TRUE(monitor.read_state());
-  const auto local = {&open, &intruder, &forged, &monitor};
+  const std::vector<const Peer*> local{&open, &intruder, &forged, &monitor};
 
   ChildProcess encoder(run_args(encoder_machine, domain), (dir.path / "run.log").string());
   ASSERT_TRUE(encoder.started());
   ASSERT_TRUE(wait_until([&] { return monitor.states_received() > 4000; }, ve::test::patience(30s)))
       << "received " << monitor.states_received() << ", matched " << monitor.state_writers_matched() << "\n"
       << encoder.log();
-  // The product's monitor with the monitor identity's profiles, as deployed.
-  ChildProcess csv({VE_BINARY, "monitor", "--config", monitor_machine.string(), "--domain", std::to_string(domain),
-                    "--csv", "--duration", "80"},
-                   (dir.path / "monitor.log").string());
-  ASSERT_TRUE(csv.started());
-  ASSERT_TRUE(wait_until([&] { return csv_rows(csv.log()) > 4000; }, ve::test::patience(60s))) << csv.log() << "\n" << encoder.log();
+  // The product's monitor with the monitor identity's profiles, as deployed. It joins a
+  // domain of five participants, four of them secure: with Fast DDS 2.9.1 it can stay
+  // unmatched with the encoder for good (the race at the top of this file; seen once in
+  // 12 runs on a loaded 2-core host: its log said "Attempting to add existing reader,
+  // updating information" as it met them, then only "No key material yet"). A monitor
+  // started again is a new participant, matched afresh: what an operator does (README,
+  // "DDS Security"). So it is started once more, and said so, if it has not received
+  // within 20 s (about 20 handshake resends; normally it receives within 2 s).
+  const std::vector<std::string> csv_args{VE_BINARY, "monitor", "--config", monitor_machine.string(), "--domain",
+                                          std::to_string(domain), "--csv", "--duration", "80"};
+  auto csv = std::make_unique<ChildProcess>(csv_args, (dir.path / "monitor.log").string());
+  ASSERT_TRUE(csv->started());
+  if (!wait_until([&] { return csv_rows(csv->log()) > 4000; }, ve::test::patience(20s))) {
+    const std::string first = csv->log();
+    std::printf("[ note     ] `monitor --csv` received %zu rows within %lld s (Fast DDS 2.9.1 race, top of "
+                "dds_security_test.cpp); started once more. Its log had %s\n",
+                csv_rows(first), static_cast<long long>(ve::test::patience(20s).count() / 1000),
+                first.find("Attempting to add existing reader") != std::string::npos
+                    ? "\"Attempting to add existing reader\""
+                    : "no \"Attempting to add existing reader\"");
+    std::fflush(stdout);
+    csv.reset();
+    csv = std::make_unique<ChildProcess>(csv_args, (dir.path / "monitor-2.log").string());
+    ASSERT_TRUE(csv->started());
+    ASSERT_TRUE(wait_until([&] { return csv_rows(csv->log()) > 4000; }, ve::test::patience(60s)))
+        << "first monitor:\n" << first << "\nsecond monitor:\n" << csv->log() << "\n" << encoder.log();
+  }
   // A generous window more for the denied ones, while the permitted one keeps receiving.
   const std::uint64_t monitor_before = monitor.states_received();
   std::this_thread::sleep_for(5s);
@@ -456,7 +591,7 @@ TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
   std::printf("[ figures  ] state samples received: monitor %llu, `monitor --csv` %zu; unauthenticated %llu, "
               "intruder with forged permissions %llu; the intruder was admitted by %d, the forged one by %d "
               "participant(s) of other processes\n",
-              static_cast<unsigned long long>(monitor.states_received()), csv_rows(csv.log()),
+              static_cast<unsigned long long>(monitor.states_received()), csv_rows(csv->log()),
               static_cast<unsigned long long>(open.states_received()),
               static_cast<unsigned long long>(forged.states_received()), intruder.admitted_by_others(local),
               forged.admitted_by_others(local));
@@ -474,8 +609,8 @@ TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
   // The encoder ran with the secure profiles.
   EXPECT_NE(encoder.log().find("XML profiles from " + pki.profiles("encoder").string()), std::string::npos)
       << encoder.log();
-  csv.signal(SIGINT);
-  EXPECT_EQ(csv.wait_exit(ve::test::patience(20s)), 0) << csv.log();
+  csv->signal(SIGINT);
+  EXPECT_EQ(csv->wait_exit(ve::test::patience(20s)), 0) << csv->log();
   encoder.signal(SIGINT);
   EXPECT_EQ(encoder.wait_exit(ve::test::patience(20s)), 0) << encoder.log();
 }
@@ -491,34 +626,63 @@ TEST(DdsSecurity, OnlyThePermittedMonitorStartsACalibration) {
   ChildProcess encoder(run_args(encoder_machine, domain), (dir.path / "run.log").string());
   ASSERT_TRUE(encoder.started());
 
+  // They join one at a time, each once the previous one is done with the encoder, the
+  // permitted monitor first (the top of this file says why). Without security there is
+  // no handshake.
   Peer open(domain, "unauthenticated", {});
   ASSERT_TRUE(open.ok());
   ASSERT_TRUE(open.write_commands());
   ASSERT_TRUE(open.read_status());
-  Peer intruder(domain, "intruder", pki.properties("intruder"));
-  ASSERT_TRUE(intruder.ok());
-  // Its access control refuses a writer of ve/calibration_command and a reader of the status.
-  EXPECT_FALSE(intruder.write_commands());
-  EXPECT_FALSE(intruder.read_status());
+  // The permitted monitor: matched both ways with the encoder, discovery and
+  // authentication are done.
+  const std::unique_ptr<Peer> monitor_peer = join_once_more(
+      "monitor",
+      [&]() -> std::unique_ptr<Peer> {
+        auto p = std::make_unique<Peer>(domain, "monitor", pki.properties("monitor"));
+        if (!p->ok() || !p->write_commands() || !p->read_status()) {
+          ADD_FAILURE() << "the monitor's participant, command writer or status reader was not created";
+          return nullptr;
+        }
+        return p;
+      },
+      [&](Peer& p) {
+        return p.command_readers_matched() > 0 && p.status_writers_matched() > 0 &&
+               p.admitted_by_others({&p, &open}) > 0;
+      },
+      encoder);
+  ASSERT_NE(monitor_peer, nullptr);
+  // The encoder admits the intruder's participant (authentication and permissions pass)...
+  const std::unique_ptr<Peer> intruder = join_once_more(
+      "intruder",
+      [&]() -> std::unique_ptr<Peer> {
+        auto p = std::make_unique<Peer>(domain, "intruder", pki.properties("intruder"));
+        if (!p->ok()) {
+          ADD_FAILURE() << "the intruder has a valid identity and permissions: its participant is created";
+          return nullptr;
+        }
+        // ...but its access control refuses it a writer of ve/calibration_command and a reader of the status.
+        EXPECT_FALSE(p->write_commands());
+        EXPECT_FALSE(p->read_status());
+        return p;
+      },
+      [&](Peer& p) { return p.admitted_by_others({&p, &open, monitor_peer.get()}) > 0; }, encoder);
+  ASSERT_NE(intruder, nullptr);
+  // The one with forged permissions passes the handshake and is refused by the
+  // encoder's access control: nothing of that is visible from this side, so it has the
+  // time it takes to discover the encoder and a few handshake periods more.
   Peer forged(domain, "intruder-forged", pki.properties("intruder", true));
   ASSERT_TRUE(forged.ok());
   ASSERT_TRUE(forged.write_commands()) << "its forged permissions grant it ve/* locally";
   ASSERT_TRUE(forged.read_status());
-  Peer monitor(domain, "monitor", pki.properties("monitor"));
-  ASSERT_TRUE(monitor.ok());
-  ASSERT_TRUE(monitor.write_commands());
-  ASSERT_TRUE(monitor.read_status());
-  const auto local = {&open, &intruder, &forged, &monitor};
+  ASSERT_TRUE(wait_until([&] { return forged.discovered_others({&forged, &open, monitor_peer.get(), intruder.get()}) > 0; },
+                         ve::test::patience(30s)))
+      << forged.report() << "\n" << encoder.log();
+  std::this_thread::sleep_for(3s);
+  Peer& monitor = *monitor_peer;
+  const std::vector<const Peer*> local{&open, intruder.get(), &forged, &monitor};
+  std::printf("[ figures  ] joined: %s\n[ figures  ] joined: %s\n[ figures  ] joined: %s\n", intruder->report().c_str(),
+              forged.report().c_str(), monitor.report().c_str());
 
-  // The permitted monitor is matched both ways and the encoder admitted the
-  // intruder's participant: discovery and authentication are done.
-  ASSERT_TRUE(wait_until(
-      [&] {
-        return monitor.command_readers_matched() > 0 && monitor.status_writers_matched() > 0 &&
-               intruder.admitted_by_others(local) > 0;
-      },
-      30s))
-      << encoder.log();
   // The denied ones send first and get a generous window.
   ASSERT_TRUE(open.send(ve::dds::CALIBRATION_CMD_START, kOpenRequest, 0.002));
   ASSERT_TRUE(forged.send(ve::dds::CALIBRATION_CMD_START, kForgedRequest, 0.002));
