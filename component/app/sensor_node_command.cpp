@@ -19,7 +19,7 @@
 #include "signals.hpp"
 #include "sim/sim_source.hpp"
 #include "socketcan/can_layout.hpp"
-#include "socketcan/can_layout_file.hpp"
+#include "config/can_layout_file.hpp"
 
 namespace ve::app {
 

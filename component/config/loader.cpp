@@ -21,7 +21,7 @@
 
 #include "config/embedded.hpp"
 #include "core/sample.hpp"
-#include "socketcan/can_layout_file.hpp"  // socketcan driver layout files (issue 6)
+#include "config/can_layout_file.hpp"
 
 namespace ve::config {
 

@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "socketcan/can_layout.hpp"
-#include "socketcan/can_layout_file.hpp"
+#include "config/can_layout_file.hpp"
 
 using namespace ve::socketcan;
 

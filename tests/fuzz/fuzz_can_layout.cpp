@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "socketcan/can_layout.hpp"
-#include "socketcan/can_layout_file.hpp"
+#include "config/can_layout_file.hpp"
 
 namespace {
 

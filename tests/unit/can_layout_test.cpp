@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "socketcan/can_layout.hpp"
-#include "socketcan/can_layout_file.hpp"
+#include "config/can_layout_file.hpp"
 #include "socketcan/socketcan_source.hpp"
 
 using namespace ve::socketcan;

@@ -25,7 +25,7 @@
 #include "config/loader.hpp"
 #include "../integration/temp_dir.hpp"
 #include "core/motor.hpp"
-#include "socketcan/can_layout_file.hpp"
+#include "config/can_layout_file.hpp"
 
 namespace ve::config {
 namespace {

@@ -31,7 +31,7 @@
 #include "config/loader.hpp"
 #include "core/pipeline.hpp"
 #include "sim/sim_source.hpp"
-#include "socketcan/can_layout_file.hpp"
+#include "config/can_layout_file.hpp"
 #include "socketcan/socketcan_source.hpp"
 #include "../integration/process.hpp"
 #include "../integration/temp_dir.hpp"

@@ -2,6 +2,9 @@
 // FILE:LINE:COL: FIELD: MESSAGE through the config schema layer. Header-only on
 // purpose: it is compiled into the config loader (driver section of a machine file)
 // and into the sensor-node command (--layout FILE), and keeps ve_drivers free of YAML.
+// It lives in the config layer (it reads a file with the config schema), while the
+// layout it fills stays the SocketCAN driver's (drivers/socketcan/can_layout.hpp,
+// namespace ve::socketcan): config may include drivers, drivers never config.
 //
 // Schema (see config/can/classic-4hall.yaml for a documented example):
 //   layout: NAME                       # optional, for messages
