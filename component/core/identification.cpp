@@ -30,32 +30,6 @@ struct SegmentKinematics {
   double ts = 0.0;
 };
 
-/// Linear regression y = slope * x + intercept; false when x does not vary.
-struct Regression {
-  double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
-  long n = 0;
-  void add(double x, double y) {
-    sx += x;
-    sy += y;
-    sxx += x * x;
-    sxy += x * y;
-    syy += y * y;
-    ++n;
-  }
-  bool solve(double& slope, double& intercept, double& residual_rms) const {
-    if (n < 3) return false;
-    const double mx = sx / n, my = sy / n;
-    const double vxx = sxx / n - mx * mx;
-    if (!(vxx > 0.0)) return false;
-    const double vxy = sxy / n - mx * my;
-    const double vyy = syy / n - my * my;
-    slope = vxy / vxx;
-    intercept = my - slope * mx;
-    residual_rms = std::sqrt(std::max(0.0, vyy - slope * vxy));
-    return true;
-  }
-};
-
 bool in_range_reading(const MotorConfig& m, double y) {
   return y > m.adc.min_v + m.hall.saturation_margin_v && y < m.adc.max_v - m.hall.saturation_margin_v;
 }

@@ -11,6 +11,8 @@
 // Pure computation on vectors held in memory; no I/O.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -97,6 +99,32 @@ struct IdentificationReport {
 bool identify_with_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
                              const IdentificationConfig& config, Calibration& out, IdentificationReport& report,
                              std::string& error);
+
+/// Linear regression y = slope * x + intercept; false when x does not vary.
+struct Regression {
+  double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
+  long n = 0;
+  void add(double x, double y) {
+    sx += x;
+    sy += y;
+    sxx += x * x;
+    sxy += x * y;
+    syy += y * y;
+    ++n;
+  }
+  bool solve(double& slope, double& intercept, double& residual_rms) const {
+    if (n < 3) return false;
+    const double mx = sx / n, my = sy / n;
+    const double vxx = sxx / n - mx * mx;
+    if (!(vxx > 0.0)) return false;
+    const double vxy = sxy / n - mx * my;
+    const double vyy = syy / n - my * my;
+    slope = vxy / vxx;
+    intercept = my - slope * mx;
+    residual_rms = std::sqrt(std::max(0.0, vyy - slope * vxy));
+    return true;
+  }
+};
 
 /// Velocity and acceleration of a uniformly sampled position by a quadratic
 /// Savitzky-Golay fit over 2 * half_window + 1 samples; `valid` is false within

@@ -195,6 +195,32 @@ double line_at(const Pass& p, std::size_t i, double ts) { return p.c + p.v * (st
 
 double accel_reading(const RawSample& s) { return s.accel_mps2 - (s.accel_base_valid ? s.accel_base_mps2 : 0.0); }
 
+/// The carriage's acceleration at sample i of a segment as the accelerometer
+/// tells it: its reading `lag_s` later (interpolated between samples, held at the
+/// segment's ends, `bias` where a reading is invalid), less the bias, over the scale.
+class AccelerometerSeries {
+ public:
+  AccelerometerSeries(const std::vector<RawSample>& s, double ts, double lag_s, double bias, double scale)
+      : s_(s), bias_(bias), scale_(scale) {
+    const double lag = lag_s / ts;
+    whole_ = static_cast<long>(std::floor(lag));
+    frac_ = lag - static_cast<double>(whole_);
+  }
+  double operator()(std::size_t i) const {
+    const long j = static_cast<long>(i) + whole_;
+    return ((1.0 - frac_) * reading(j) + frac_ * reading(j + 1) - bias_) / scale_;
+  }
+
+ private:
+  double reading(long j) const {
+    const auto& smp = s_[static_cast<std::size_t>(std::clamp(j, 0L, static_cast<long>(s_.size()) - 1))];
+    return smp.accel_valid ? accel_reading(smp) : bias_;
+  }
+  const std::vector<RawSample>& s_;
+  double bias_, scale_, frac_ = 0.0;
+  long whole_ = 0;
+};
+
 struct AccelFit {
   bool ok = false;
   double scale = 1.0, bias = 0.0, delay_s = 0.0, residual_mps2 = 0.0;
@@ -272,10 +298,6 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   // over the fast motion only: the many slow samples carry no timing, only the
   // reading's noise, which the interpolation lowers at fractional delays and so
   // would pull the delay.
-  struct Line {
-    long n = 0;
-    double scale = 0.0, bias = 0.0, rms = std::numeric_limits<double>::infinity();
-  };
   // The fast samples of each segment, listed once: the scan visits them per trial delay.
   auto fast_samples = [&](const std::vector<FilteredSides>& sides) {
     std::vector<std::vector<std::size_t>> idx(ng);
@@ -286,8 +308,7 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   };
   auto regress = [&](const std::vector<FilteredSides>& sides, const std::vector<std::vector<std::size_t>>& fast,
                      double delay) {
-    double sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
-    Line l;
+    Regression r;
     for (std::size_t g = 0; g < ng; ++g) {
       const double shift = delay / ts[g];
       const auto whole = static_cast<std::size_t>(std::floor(shift));
@@ -295,21 +316,10 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
       const auto& a = sides[g].ar;
       for (const std::size_t i : fast[g]) {
         if (i + whole + 1 >= a.size()) break;
-        const double x = a[i], y = shifted(sides[g].az, i, whole, frac);
-        sx += x, sy += y, sxx += x * x, sxy += x * y, syy += y * y, ++l.n;
+        r.add(a[i], shifted(sides[g].az, i, whole, frac));
       }
     }
-    if (l.n < 3) return l;
-    const double n = static_cast<double>(l.n);
-    const double mx = sx / n, my = sy / n, vxx = sxx / n - mx * mx, vxy = sxy / n - mx * my, vyy = syy / n - my * my;
-    if (!(vxx > 0.0)) {
-      l.n = 0;
-      return l;
-    }
-    l.scale = vxy / vxx;
-    l.bias = my - l.scale * mx;
-    l.rms = std::sqrt(std::max(0.0, vyy - vxy * vxy / vxx));
-    return l;
+    return r;
   };
   const double ts0 = ts.empty() ? 0.0 : ts[0];
   const double step = ts0 / 10.0;
@@ -319,13 +329,13 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   int best_i = -1;
   const auto fast = fast_samples(f);
   for (int di = 0; di < n_delays; ++di) {
-    const Line l = regress(f, fast, di * step);
-    if (l.n < 3) continue;
-    scan[static_cast<std::size_t>(di)] = l.rms;
-    if (l.rms < best) {
-      best = l.rms, best_i = di;
-      fit.scale = l.scale;
-      fit.bias = l.bias;
+    double scale, bias, rms;
+    if (!regress(f, fast, di * step).solve(scale, bias, rms)) continue;
+    scan[static_cast<std::size_t>(di)] = rms;
+    if (rms < best) {
+      best = rms, best_i = di;
+      fit.scale = scale;
+      fit.bias = bias;
     }
   }
   if (best_i < 0) return fit;
@@ -344,8 +354,9 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
     std::vector<FilteredSides> fl(ng);
     for (std::size_t g = 0; g < ng; ++g)
       filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], m_long, ic.max_accel_delay_s, fl[g]);
-    const Line l = regress(fl, fast_samples(fl), fit.delay_s);
-    if (l.n >= ic.dynamic_min_samples) fit.scale = l.scale;
+    const Regression r = regress(fl, fast_samples(fl), fit.delay_s);
+    double scale, bias, rms;
+    if (r.n >= ic.dynamic_min_samples && r.solve(scale, bias, rms)) fit.scale = scale;
   }
   // The bias over every usable sample (the slow passes too).
   {
@@ -570,19 +581,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         if (n > 0) bias = sum / static_cast<double>(n);
       }
       if (std::isfinite(accel_bias)) bias = accel_bias;
-      // The acceleration at sample i is read accel_lag_s later: interpolated between samples.
-      auto reading_at = [&](long j) {
-        const auto& smp = s[static_cast<std::size_t>(std::clamp(j, 0L, static_cast<long>(s.size()) - 1))];
-        return smp.accel_valid ? accel_reading(smp) : bias;
-      };
-      const double lag = accel_lag_s / ts[g];
-      const auto lag_whole = static_cast<long>(std::floor(lag));
-      const double lag_frac = lag - static_cast<double>(lag_whole);
-      auto acc = [&](std::size_t i) {
-        const long j = static_cast<long>(i) + lag_whole;
-        const double z = (1.0 - lag_frac) * reading_at(j) + lag_frac * reading_at(j + 1);
-        return (z - bias) / accel_scale;
-      };
+      const AccelerometerSeries acc(s, ts[g], accel_lag_s, bias, accel_scale);
       const auto max_gap = static_cast<std::size_t>(1.0 / ts[g]);
       for (std::size_t q = 0; q <= ps.size(); ++q) {
         // The gap between pass q-1 and pass q: short ones (turnarounds) are bridged
@@ -775,18 +774,8 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     // misjudged, so regressing on them pulls the coil field low and the errors grow.
     if (std::isfinite(accel_bias)) {
       for (std::size_t g = 0; g < ng; ++g) {
-        const auto& s = work[g].samples;
-        const double lag = accel_lag_s / ts[g];
-        const auto whole = static_cast<long>(std::floor(lag));
-        const double frac = lag - static_cast<double>(whole);
-        const long n = static_cast<long>(s.size());
-        auto reading = [&](long j) {
-          const auto& smp = s[static_cast<std::size_t>(std::clamp(j, 0L, n - 1))];
-          return smp.accel_valid ? accel_reading(smp) : accel_bias;
-        };
-        for (long i = 0; i < n; ++i)
-          accel[g][static_cast<std::size_t>(i)] =
-              ((1.0 - frac) * reading(i + whole) + frac * reading(i + whole + 1) - accel_bias) / accel_scale;
+        const AccelerometerSeries acc(work[g].samples, ts[g], accel_lag_s, accel_bias, accel_scale);
+        for (std::size_t i = 0; i < accel[g].size(); ++i) accel[g][i] = acc(i);
       }
     }
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "core/identification.hpp"
 #include "pacing.hpp"
 
 namespace ve::sim {
@@ -215,19 +216,12 @@ void SimSource::build_track() {
 }
 
 double SimSource::track_scale_error(double lo_m, double hi_m) const {
-  const double pitch = motor_.magnet_pitch_m;
-  double sx = 0, sy = 0, sxx = 0, sxy = 0;
-  long n = 0;
-  for (std::size_t k = 0; k < boundary_m_.size(); ++k) {
-    const double b = boundary_m_[k];
-    if (b < lo_m || b > hi_m) continue;
-    const double x = static_cast<double>(j_first_ + static_cast<std::int64_t>(k)) * pitch;
-    sx += x, sy += b, sxx += x * x, sxy += x * b, ++n;
-  }
-  if (n < 3) return 0.0;
-  const double nn = static_cast<double>(n);
-  const double vxx = sxx / nn - (sx / nn) * (sx / nn);
-  return vxx > 0.0 ? (sxy / nn - (sx / nn) * (sy / nn)) / vxx - 1.0 : 0.0;
+  core::Regression r;  // boundary against its nominal place
+  for (std::size_t k = 0; k < boundary_m_.size(); ++k)
+    if (boundary_m_[k] >= lo_m && boundary_m_[k] <= hi_m)
+      r.add(static_cast<double>(j_first_ + static_cast<std::int64_t>(k)) * motor_.magnet_pitch_m, boundary_m_[k]);
+  double slope, intercept, rms;
+  return r.solve(slope, intercept, rms) ? slope - 1.0 : 0.0;
 }
 
 double SimSource::field_shape(double theta) const {
