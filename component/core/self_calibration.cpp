@@ -110,8 +110,7 @@ double coil_residual_slope(const MotorConfig& motor, const HallArray& array, con
   track_positions(array, s, cm, start, x);
   const double lo_v = motor.adc.min_v + motor.hall.saturation_margin_v;
   const double hi_v = motor.adc.max_v - motor.hall.saturation_margin_v;
-  double sa = 0, sr = 0, saa = 0, sar = 0;
-  long n = 0;
+  Regression fit;  // the readings' mean residual against the acceleration
   for (std::size_t i = 0; i < s.size(); ++i) {
     if (std::abs(accel[i]) < min_accel) continue;
     double sum = 0.0;
@@ -123,12 +122,10 @@ double coil_residual_slope(const MotorConfig& motor, const HallArray& array, con
       ++k;
     }
     if (k == 0) continue;
-    const double r = sum / k;
-    sa += accel[i], sr += r, saa += accel[i] * accel[i], sar += accel[i] * r, ++n;
+    fit.add(accel[i], sum / k);
   }
-  if (n < 3) return 0.0;
-  const double va = saa / n - (sa / n) * (sa / n);
-  return va > 0.0 ? (sar / n - (sa / n) * (sr / n)) / va : 0.0;
+  double slope, intercept, rms;
+  return fit.solve(slope, intercept, rms) ? slope : 0.0;
 }
 
 struct Pass {
