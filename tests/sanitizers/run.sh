@@ -25,6 +25,8 @@
 #    second DDS implementation; our side of it is `virtual-encoder run`, which the DDS
 #    integration tests already run under the sanitizer;
 #  - the benchmarks (timing figures mean nothing under a sanitizer);
+#  - the plant test (label plant, tests/cmake.d/discovery.cmake): ten 1 kHz axes, servers and
+#    a monitor in network namespaces, judged on the stream's real-time figures;
 #  - Realtime.WithoutPermissionWarnsOncePerSettingAndPublishes: it checks the warning for
 #    a refused mlockall(), and the sanitizer runtimes replace mlockall() by a no-op that
 #    succeeds (shadow memory cannot be locked), so the refusal never happens there.
@@ -79,7 +81,7 @@ export TSAN_OPTIONS="$(tsan_options "$supp/tsan.supp")"
 
 fastdds shm clean >/dev/null 2>&1 || true
 status=0
-# -L/-LE: the tests named above, without the VM and interop ones. The VM test binary is
+# -L/-LE: the tests named above, without the VM, interop and plant ones. The VM test binary is
 # not built here, so its placeholder test (no labels) is left out too.
 labels='unit|integration'
 exclude='Realtime\.WithoutPermissionWarnsOncePerSettingAndPublishes'
@@ -94,7 +96,7 @@ if [ "$kind" = tsan ]; then
   exclude="$exclude|BadInput/CommandLine\..*|BadInput/CommandLineValue\..*|BadInput/Help\..*"
   exclude="$exclude|SelfCalibration\..*|SelfCalibrationPopulation\..*"
 fi
-ctest --test-dir "$build" --output-on-failure --timeout 600 --parallel "$(nproc)" -L "$labels" -LE 'vm|interop' \
+ctest --test-dir "$build" --output-on-failure --timeout 600 --parallel "$(nproc)" -L "$labels" -LE 'vm|interop|plant' \
   -E "^($exclude)\$" "$@" || status=1
 if [ "$kind" = tsan ]; then
   cat "$supp/tsan.supp" "$supp/tsan-security.supp" >"$build/tsan-security.supp"
