@@ -38,6 +38,43 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   gain_tc_std_ = f.hall_gain_tc_std_per_k;
   offset_tc_std_v_ = f.hall_offset_tc_std_v_per_k;
   temperature_alpha_ = 1.0 - std::exp(-ts_s / kTemperatureAverageS);
+  infer_decay_ = std::exp(-ts_s / kInferAverageS);
+  infer_settle_samples_ = static_cast<std::uint64_t>(std::ceil(kInferAverageS / ts_s));
+}
+
+void HallAdaptation::widen_for_rise(double d_k) {
+  const double limit2 = gain_limit_ * gain_limit_;
+  const double d2 = d_k * d_k;
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * d2, limit2);
+    p_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d2;
+  }
+}
+
+void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
+  if (!enabled_ || temperature_known_ || !std::isfinite(relative_change) || !(variance > 0.0) ||
+      !(std::abs(common_tc_per_k_) > 0.0))
+    return;
+  const double g = (1.0 + common_gain_) * (1.0 + relative_change) - 1.0;
+  const double w = 1.0 / (variance + model_var_common_);
+  infer_wg_ = infer_decay_ * infer_wg_ + w * g;
+  infer_w_ = infer_decay_ * infer_w_ + w;
+  if (++infer_samples_ < infer_settle_samples_) return;
+  // The coefficients are known to tc_rel_std: the rise they imply, as far as it may be.
+  const double rise_k = infer_wg_ / infer_w_ / common_tc_per_k_ * std::sqrt(1.0 + tc_rel_std_ * tc_rel_std_);
+  if (!inferred_started_) {
+    inferred_started_ = true;
+    inferred_k_ = rise_k;
+    widen_for_rise(rise_k);
+    return;
+  }
+  // Then as temperature() follows a reported one: in steps of a quarter kelvin, each
+  // step widening by what it allows (what was learnt in between stays learnt).
+  const double d = rise_k - inferred_k_;
+  if (std::abs(d) < 0.25) return;
+  inferred_k_ = rise_k;
+  widen_for_rise(d);
 }
 
 void HallAdaptation::update_common(double relative_change, double variance, double share) {
@@ -74,12 +111,7 @@ void HallAdaptation::temperature(double delta_k) {
     p_common_ = std::min(p0_gg_ + sd * sd + sd_reading * sd_reading, limit2);
     // Each sensor's spread for this rise; a reading's own error (kReadingStdK) moves
     // a sensor by far less than the start-up prior already allows for.
-    const double rise2 = delta_k * delta_k;
-    for (int i = 0; i < sensors_; ++i) {
-      const auto k = static_cast<std::size_t>(i);
-      p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * rise2, limit2);
-      p_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * rise2;
-    }
+    widen_for_rise(delta_k);
     return;
   }
   // The motor's temperature moves over minutes; the node's reading is noisy and
@@ -91,11 +123,7 @@ void HallAdaptation::temperature(double delta_k) {
   const double dg = common_tc_per_k_ * d;
   common_gain_ = std::clamp((1.0 + common_gain_) * (1.0 + dg) - 1.0, -gain_limit_, gain_limit_);
   p_common_ = std::min(p_common_ + tc_rel_std_ * tc_rel_std_ * dg * dg, limit2);
-  for (int i = 0; i < sensors_; ++i) {
-    const auto k = static_cast<std::size_t>(i);
-    p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * d * d, limit2);
-    p_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d * d;
-  }
+  widen_for_rise(d);
 }
 
 void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSample& out) const {

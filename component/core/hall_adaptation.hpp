@@ -62,6 +62,16 @@ class HallAdaptation {
   /// predicted change and widen the uncertainties by what the change allows.
   void temperature(double delta_k);
 
+  /// Without a temperature from the sensor node: a Hall fix's estimate of the common
+  /// gain (`relative_change` of the gain the correction assumed, its variance). The
+  /// common gain is mostly the magnets' and the sensors' temperature coefficients
+  /// (common_tc), so its average over the last fraction of a second says how far the
+  /// motor is from its calibration temperature, and with it how far each sensor's own
+  /// gain and offset may have moved, as temperature() does with a reported one. Taken
+  /// from every fix, moving or not: at standstill it is the only witness of a change
+  /// of temperature, and what the sensors' drift does there cannot be learnt.
+  void observe_fix_gain(double relative_change, double variance);
+
   /// Learns from one sample: `x_m` the position the Halls saw (the filter's
   /// prediction at the Halls' instant); only sensors in `mask` (not this sample's
   /// outlier) and out of saturation take part. What a position error would explain
@@ -142,6 +152,15 @@ class HallAdaptation {
   double smoothed_k_ = 0.0;           ///< the averaged rise [K]
   double temperature_k_ = 0.0;        ///< the rise last applied [K]
   bool temperature_known_ = false;
+  void widen_for_rise(double d_k);  ///< each sensor's gain and offset may have moved by d_k's worth
+  // The rise the fixes' common gain shows (observe_fix_gain): its weighted average
+  // over about kInferAverageS, taken in once kInferAverageS has passed.
+  static constexpr double kInferAverageS = 0.2;
+  double infer_decay_ = 0.0;
+  double infer_wg_ = 0.0, infer_w_ = 0.0;
+  std::uint64_t infer_samples_ = 0, infer_settle_samples_ = 0;
+  bool inferred_started_ = false;
+  double inferred_k_ = 0.0;           ///< the rise last applied, as large as the coefficients allow [K]
   double common_gain_ = 0.0, p_common_ = 0.0;
   double p0_gg_, p0_dd_;              ///< start-up variances, where the random walk stops
   double gain_limit_, offset_limit_v_;

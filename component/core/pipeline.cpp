@@ -350,6 +350,9 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       learn = d * d <= kAdaptInnovationSigma * kAdaptInnovationSigma * var;
     }
     if (fix.ok && cfg_.signature_homing) signature_step(corrected_, guess, common_mode, use);
+    // Without a temperature from the node, the common gain every fix sees is the
+    // thermometer: how far the sensors may have drifted follows from it.
+    if (judge && fix.common_gain_variance > 0.0) adapt_.observe_fix_gain(fix.common_gain, fix.common_gain_variance);
     if (fix.ok) {
       without_fix_in_row_ = 0;
       out_.hall_position_m = fix.position_m;
