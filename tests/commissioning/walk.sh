@@ -155,9 +155,14 @@ for m in sweep fast accept; do need_file node-$m.yaml; done
 has check-wiring "OK: machine" "check of the wired machine did not pass"
 has check-wiring "socketcan" "check does not name the socketcan driver"
 has check-wiring "no calibration: nominal table" "check before calibration should run on the nominal table"
+# Every sample the node sent was recorded: `record` listened before the motion began,
+# and no frame was lost on the way.
 for rec in sweep fast accept; do
   need_file $rec.csv
-  has record-$rec "recorded [0-9]* samples" "record wrote no summary"
+  sent=$(sed -n 's/^sensor-node: [0-9]* frames (\([0-9]*\) samples) sent.*/\1/p' "$OUT/logs/record-$rec.log")
+  got=$(sed -n 's/^recorded \([0-9]*\) samples .*/\1/p' "$OUT/logs/record-$rec.log")
+  [ -n "$sent" ] && [ -n "$got" ] || fail "step record-$rec: no sensor-node or record summary"
+  [ "$sent" -eq "$got" ] || fail "step record-$rec: the node sent $sent samples, record wrote $got"
 done
 # The sweep is one round trip over the stroke (15.2 s at 4 kHz), the fast motion 3 s, the
 # acceptance run 4 s: most of it must have been recorded.
@@ -197,7 +202,16 @@ has check-calibrated "OK: machine" "check of the calibrated machine did not pass
 id=$(sed -n 's/^id: *["'"'"']\{0,1\}\([0-9a-f]*\).*/\1/p' "$WORK/ruler/bench-x.cal.yaml")
 [ -n "$id" ] || fail "ruler/bench-x.cal.yaml has no id"
 has check-calibrated "calibration $id" "check does not name the installed calibration $id"
-has evaluate "ruler" "evaluate did not score against the ruler"
+# The acceptance run against the ruler meets the product's 5 um target, and the
+# consistency check finds it VALID nearly throughout.
+has evaluate "against a reference ruler" "evaluate did not score against the ruler"
+rms=$(sed -n 's/^  position error \[um\]: *rms *\([0-9.]*\).*/\1/p' "$OUT/logs/evaluate.log" | head -n 1)
+[ -n "$rms" ] || fail "evaluate printed no position error"
+awk -v r="$rms" 'BEGIN { exit !(r < 5.0) }' || fail "acceptance: position error $rms um RMS against the ruler (5 um or more)"
+valid=$(sed -n 's/^  VALID: \([0-9.]*\) % of samples.*/\1/p' "$OUT/logs/evaluate.log" | head -n 1)
+[ -n "$valid" ] || fail "evaluate's consistency check printed no VALID fraction"
+awk -v v="$valid" 'BEGIN { exit !(v >= 95.0) }' || fail "acceptance: VALID in only $valid % of the samples"
+echo "walk: acceptance against the ruler $rms um RMS; VALID $valid % of the samples"
 need_file monitor.txt
 need_file run.log
 grep -Eq '^x\(1\) .*VALID' "$WORK/monitor.txt" || fail "monitor shows no row of axis x(1) with VALID: $(tail -n 8 "$WORK/monitor.txt")"
