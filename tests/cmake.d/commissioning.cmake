@@ -9,5 +9,5 @@ add_test(NAME commissioning.WalkFollowsTheGuide
   COMMAND /bin/sh ${PROJECT_SOURCE_DIR}/tests/commissioning/walk.sh ${PROJECT_SOURCE_DIR}
           $<TARGET_FILE:virtual-encoder> ${CMAKE_BINARY_DIR}/vm ${CMAKE_CURRENT_BINARY_DIR}/commissioning-walk)
 set_tests_properties(commissioning.WalkFollowsTheGuide PROPERTIES
-  LABELS "vm;integration" TIMEOUT 600 RUN_SERIAL TRUE SKIP_RETURN_CODE 77)
+  LABELS "vm;integration" TIMEOUT 900 RUN_SERIAL TRUE SKIP_RETURN_CODE 77)
 # ---- end commissioning walk ----
