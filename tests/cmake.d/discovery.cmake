@@ -39,3 +39,9 @@ if(VE_BUILD_BENCHMARKS)
   add_dependencies(bench_scale virtual-encoder ve_bare_reader ve_bare_writer ve_pace_floor)
 endif()
 # ---- end scale benchmark ----
+
+# The Discovery Server's unit verifies (systemd-analyze verify, as
+# systemd.UnitVerifiesAndItsCommandLineIsAccepted does for the product's unit).
+add_test(NAME systemd.DiscoveryServerUnitVerifies
+  COMMAND ${CMAKE_CURRENT_SOURCE_DIR}/plant/verify_discovery_unit.sh ${PROJECT_SOURCE_DIR})
+set_tests_properties(systemd.DiscoveryServerUnitVerifies PROPERTIES LABELS unit SKIP_RETURN_CODE 77)

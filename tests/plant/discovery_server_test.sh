@@ -35,6 +35,8 @@
 #     probe's figures (this host is shared);
 #   - both servers killed (SIGKILL): 30 s later (longer than a participant's 20 s lease, which
 #     no server renews meanwhile) every axis still arrives at the monitor;
+#   VE_PLANT_WINDOW_S (60) and VE_PLANT_ENCODERS (5, at most 5) change the window and the
+#   number of encoders, for measuring how discovery traffic grows with the participants.
 #   - the primary restarted (after its 2 s lease, as the unit does; it learns the plant again
 #     from the clients), then a sixth encoder started:
 #     the monitor receives its two axes (within VE_PLANT_NEW_BOUND_S, default 30 s).
@@ -51,6 +53,8 @@ PROBE=${4:?}
 MATCH_BOUND_S=${VE_PLANT_MATCH_BOUND_S:-10}
 NEW_BOUND_S=${VE_PLANT_NEW_BOUND_S:-30}
 WINDOW_S=${VE_PLANT_WINDOW_S:-60}
+NENC=${VE_PLANT_ENCODERS:-5}   # 1..5 encoders (the discovery traffic's dependence on their number)
+NAX=$((2 * NENC))
 
 if [ "$(id -u)" != 0 ]; then echo "SKIPPED: needs root to create network namespaces"; exit 77; fi
 for tool in ip setpriv setsid fastdds chrt flock; do
@@ -234,41 +238,49 @@ traffic_start() {  # traffic_start NAME
   wait_for 5 grep -q READY "$WORK/$1.out" || fail "the traffic counter did not start: $(cat "$WORK/$1.err")"
 }
 field() { sed -n "s/.* $2=\([0-9.]*\).*/\1/p" <<<"$1"; }
+# sleep_until_after T0 S: sleep until S seconds after the epoch time T0 (date +%s.%N).
+sleep_until_after() {
+  local left
+  left=$(awk -v t0="$1" -v s="$2" -v now="$(tod)" 'BEGIN { d = t0 + s - now; printf "%.3f", (d > 0 ? d : 0) }')
+  sleep "$left"
+}
 
 # ---------------------------------------------------------------- phase 1: simple discovery
-echo "[ phase 1  ] simple discovery (deploy/dds-profiles.xml), 5 encoders x 2 axes at 1 kHz and a monitor, 20 s"
+echo "[ phase 1  ] simple discovery (deploy/dds-profiles.xml), $NENC encoders x 2 axes at 1 kHz and a monitor, 20 s"
 PROFILES="$SRC/deploy/dds-profiles.xml"
 traffic_start traffic1
+tc1=$(tod)
 start mon1 mon "FASTRTPS_DEFAULT_PROFILES_FILE=$PROFILES" -- "$VE" monitor --domain "$D" --duration 40
 sleep 1
 t0_tod=$(now_of_day)
-for k in 1 2 3 4 5; do
+for k in $(seq 1 "$NENC"); do
   start "s-e$k" "e$k" "FASTRTPS_DEFAULT_PROFILES_FILE=$PROFILES" -- \
     "$VE" run --config "$WORK/enc$k.yaml" --domain "$D" --duration 60 --status-period 10
 done
-sleep 10
-kill -USR1 "$PID_traffic1"
-sleep 10
-line=$(matched_line mon1 10)
+sleep_until_after "$tc1" 11
+kill -USR1 "$PID_traffic1"   # the start: the first 11 s
+sleep_until_after "$tc1" 21
+line=$(matched_line mon1 "$NAX")
 if [ -n "$line" ]; then
   t_simple=$(awk -v a="$(log_seconds "$line")" -v b="$(log_seconds "$t0_tod")" 'BEGIN { printf "%.2f", a - b }')
-  echo "[ figures  ] simple discovery: all 10 state writers matched ${t_simple} s after the encoders' start"
+  echo "[ figures  ] simple discovery: all $NAX state writers matched ${t_simple} s after the encoders' start"
 else
-  fail "simple discovery: the monitor did not match the 10 state writers: $(grep matched "$WORK/mon1.err" | tail -1)"
+  fail "simple discovery: the monitor did not match the $NAX state writers: $(grep matched "$WORK/mon1.err" | tail -1)"
 fi
 stop_group "$PID_traffic1" INT
-for k in 1 2 3 4 5; do stop_group "$(eval echo "\$PID_s_e$k")" INT; done
+for k in $(seq 1 "$NENC"); do stop_group "$(eval echo "\$PID_s_e$k")" INT; done
 stop_group "$PID_mon1" INT
 simple_snap=$(grep SNAPSHOT "$WORK/traffic1.out")
 simple_end=$(grep END "$WORK/traffic1.out")
-echo "[ traffic  ] simple discovery, first 10 s: $simple_snap"
-echo "[ traffic  ] simple discovery, 20 s:       $simple_end"
+echo "[ traffic  ] simple discovery, start:      $simple_snap"
+echo "[ traffic  ] simple discovery, 10 s later:  $simple_end"
 sleep 1
 
 # ---------------------------------------------------------------- phase 2: Discovery Server
-echo "[ phase 2  ] Discovery Server (deploy/discovery/), primary and backup, the same 5 encoders and a monitor"
+echo "[ phase 2  ] Discovery Server (deploy/discovery/), primary and backup, the same $NENC encoders and a monitor"
 SERVER_XML="$SRC/deploy/discovery/server.xml"
 traffic_start traffic2
+tc2=$(tod)
 # The servers run in their own working directories (where a BACKUP server would keep its database).
 for id in 0 1; do
   mkdir -p "$WORK/ds$id-state"
@@ -284,27 +296,27 @@ start mon2 mon "FASTRTPS_DEFAULT_PROFILES_FILE=$WORK/super-client.xml" -- \
   chrt -f 40 "$VE" monitor --domain "$D" --duration "$total_s"
 sleep 1
 t0_tod=$(now_of_day)
-for k in 1 2 3 4 5; do
+for k in $(seq 1 "$NENC"); do
   start "d-e$k" "e$k" "FASTRTPS_DEFAULT_PROFILES_FILE=$WORK/client.xml" -- \
     "$VE" run --config "$WORK/enc$k.yaml" --domain "$D" --duration "$total_s" --status-period 10
 done
-if wait_for "$MATCH_BOUND_S" matched_line mon2 10 >/dev/null; then
-  line=$(matched_line mon2 10)
+if wait_for "$MATCH_BOUND_S" matched_line mon2 "$NAX" >/dev/null; then
+  line=$(matched_line mon2 "$NAX")
   t_ds=$(awk -v a="$(log_seconds "$line")" -v b="$(log_seconds "$t0_tod")" 'BEGIN { printf "%.2f", a - b }')
-  echo "[ figures  ] Discovery Server: all 10 state writers matched ${t_ds} s after the encoders' start (target 2 s)"
+  echo "[ figures  ] Discovery Server: all $NAX state writers matched ${t_ds} s after the encoders' start (target 2 s)"
 else
-  fail "Discovery Server: the monitor did not match the 10 state writers within $MATCH_BOUND_S s: $(grep matched "$WORK/mon2.err" | tail -1)"
+  fail "Discovery Server: the monitor did not match the $NAX state writers within $MATCH_BOUND_S s: $(grep matched "$WORK/mon2.err" | tail -1)"
 fi
 grep -q "DDS QoS" "$WORK/d-e1.err" && echo "[ encoder  ] $(grep -m1 'DDS QoS' "$WORK/d-e1.err" | cut -c1-160)"
-sleep 5
-kill -USR1 "$PID_traffic2"   # 0-10 s
+sleep_until_after "$tc2" 11
+kill -USR1 "$PID_traffic2"   # the start: the first 11 s, as in phase 1
 setpriv --pdeathsig KILL setsid chrt -f 50 "$PROBE" --rate 1000 --stall-ms 4 >"$WORK/probe.out" 2>&1 </dev/null &
 PIDS+=($!)
 PID_probe=$!
 table_a=$(last_table "$WORK/mon2.out")
-sleep 5
-kill -USR1 "$PID_traffic2"   # 10-20 s
-sleep $((WINDOW_S - 5))
+sleep_until_after "$tc2" 21
+kill -USR1 "$PID_traffic2"   # the next 10 s
+sleep_until_after "$tc2" $((11 + WINDOW_S))
 table_b=$(last_table "$WORK/mon2.out")
 kill -USR1 "$PID_traffic2"   # end of the window
 stop_group "$PID_probe" INT
@@ -321,7 +333,7 @@ echo "[ probe    ] SCHED_FIFO 50 at 1 kHz over the window: $stalls wake-up(s) 4 
 [ $judge_offered = 0 ] && echo "[ note     ] the host stalled a real-time thread for 4 ms or more: offered deadline misses are printed, not judged"
 [ $judge_requested = 0 ] && echo "[ note     ] the host stalled a real-time thread for 9 ms or more: requested deadline misses are printed, not judged"
 echo "[ window   ] ${WINDOW_S} s; per axis: rate Hz, sequence gaps, requested / offered deadline periods missed (in the window)"
-for id in 1 2 3 4 5 6 7 8 9 10; do
+for id in $(seq 1 "$NAX"); do
   rate=$(table_field "$table_b" "$id" rate)
   if [ -z "$rate" ] || [ -z "$(table_field "$table_a" "$id" gaps)" ]; then
     fail "axis $id: not in the monitor's table"
@@ -345,7 +357,7 @@ stop_group "$PID_ds1" KILL
 echo "[ servers  ] both servers killed (SIGKILL)"
 sleep 30
 table_c=$(last_table "$WORK/mon2.out")
-for id in 1 2 3 4 5 6 7 8 9 10; do
+for id in $(seq 1 "$NAX"); do
   rate=$(table_field "$table_c" "$id" rate)
   gaps=$(table_field "$table_c" "$id" gaps)
   echo "    axis $id, 30 s without a server: rate ${rate:-none} Hz, gaps since start ${gaps:-?}"
@@ -377,7 +389,7 @@ echo "[ monitor  ] ${line}"
 kill -USR1 "$PID_traffic2"
 stop_group "$PID_traffic2" INT
 stop_group "$PID_e6" INT
-for k in 1 2 3 4 5; do stop_group "$(eval echo "\$PID_d_e$k")" INT; done
+for k in $(seq 1 "$NENC"); do stop_group "$(eval echo "\$PID_d_e$k")" INT; done
 stop_group "$PID_mon2" INT
 stop_group "$PID_ds0r" INT
 tail -1 "$WORK/mon2.out" | sed 's/^/[ monitor  ] /'
@@ -385,21 +397,30 @@ snaps=$(grep SNAPSHOT "$WORK/traffic2.out")
 ds_10=$(sed -n 1p <<<"$snaps"); ds_20=$(sed -n 2p <<<"$snaps"); ds_win=$(sed -n 3p <<<"$snaps")
 ds_dead=$(sed -n 4p <<<"$snaps"); ds_new=$(sed -n 5p <<<"$snaps")
 ds_end=$(grep END "$WORK/traffic2.out")
-echo "[ traffic  ] Discovery Server, first 10 s: $ds_10"
-echo "[ traffic  ] Discovery Server, 20 s:       $ds_20"
+echo "[ traffic  ] Discovery Server, start:      $ds_10"
+echo "[ traffic  ] Discovery Server, 10 s later:  $ds_20"
 echo "[ traffic  ] Discovery Server, to the window's end: $ds_win"
 echo "[ traffic  ] Discovery Server, then 30 s without a server: $ds_dead"
 echo "[ traffic  ] Discovery Server, then a server restarted and a sixth encoder seen: $ds_new"
 echo "[ traffic  ] Discovery Server, whole phase: $ds_end"
-# Discovery datagrams: the first 10 s (start), the next 10 s (steady), with and without the server.
-s10=$(field "$simple_snap" discovery_packets); s20=$(field "$simple_end" discovery_packets)
-d10=$(field "$ds_10" discovery_packets); d20=$(field "$ds_20" discovery_packets)
-sb10=$(field "$simple_snap" discovery_bytes); sb20=$(field "$simple_end" discovery_bytes)
-db10=$(field "$ds_10" discovery_bytes); db20=$(field "$ds_20" discovery_bytes)
-if [ -n "$s10" ] && [ -n "$d10" ] && [ -n "$s20" ] && [ -n "$d20" ]; then
-  echo "[ figures  ] discovery datagrams (bytes), 6 participants (+2 servers), simple / Discovery Server:"
-  echo "[ figures  ]   first 10 s: $s10 ($sb10) / $d10 ($db10)"
-  echo "[ figures  ]   next 10 s:  $((s20 - s10)) ($((sb20 - sb10))) / $((d20 - d10)) ($((db20 - db10)))"
+# Discovery datagrams at the start (the first 11 s, from before the first participant) and
+# per second in the steady state after it, with and without the server; bytes per datagram
+# of user data (the state samples and the diagnostics).
+per_s() {  # per_s FROM TO FIELD: (TO.FIELD - FROM.FIELD) / (TO.seconds - FROM.seconds)
+  awk -v a="$(field "$1" "$3")" -v b="$(field "$2" "$3")" -v s="$(field "$1" seconds)" -v t="$(field "$2" seconds)" \
+    'BEGIN { printf "%.1f", (b - a) / (t - s) }'
+}
+if [ -n "$simple_snap" ] && [ -n "$simple_end" ] && [ -n "$ds_10" ] && [ -n "$ds_20" ] && [ -n "$ds_win" ]; then
+  echo "[ figures  ] discovery, $((NENC + 1)) participants ($NENC encoders, a monitor), simple / Discovery Server (+2 servers):"
+  echo "[ figures  ]   start (first 11 s): $(field "$simple_snap" discovery_packets) / $(field "$ds_10" discovery_packets) datagrams," \
+    "$(field "$simple_snap" discovery_bytes) / $(field "$ds_10" discovery_bytes) bytes"
+  echo "[ figures  ]   steady (next 10 s): $(per_s "$simple_snap" "$simple_end" discovery_packets) / $(per_s "$ds_10" "$ds_20" discovery_packets) datagrams/s," \
+    "$(per_s "$simple_snap" "$simple_end" discovery_bytes) / $(per_s "$ds_10" "$ds_20" discovery_bytes) bytes/s"
+  echo "[ figures  ]   Discovery Server over the ${WINDOW_S} s window: $(per_s "$ds_10" "$ds_win" discovery_packets) datagrams/s," \
+    "$(per_s "$ds_10" "$ds_win" discovery_bytes) bytes/s"
+  [ -n "$ds_dead" ] && echo "[ figures  ]   Discovery Server, the 30 s without a server: $(per_s "$ds_win" "$ds_dead" discovery_packets) datagrams/s"
+  echo "[ figures  ] user data over the window: $(per_s "$ds_10" "$ds_win" data_packets) datagrams/s," \
+    "$(awk -v b="$(($(field "$ds_win" data_bytes) - $(field "$ds_10" data_bytes)))" -v p="$(($(field "$ds_win" data_packets) - $(field "$ds_10" data_packets)))" 'BEGIN { printf "%.1f", b / p }') bytes per datagram (Ethernet frame)"
 else
   fail "traffic counts missing"
 fi

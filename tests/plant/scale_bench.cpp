@@ -168,7 +168,24 @@ struct Measure {
   double cpu_pct = -1;      // publisher, % of one core
   double sub_cpu_pct = -1;  // subscriber, % of one core
   double rx_per_s = -1;     // samples received per second by the subscriber
+  double pub_per_s = -1;    // samples the publisher says it published, per second of its life
 };
+
+/// The samples a publisher says it published: `run`'s "published N samples" (stderr) or
+/// the bare writer's "END written=N" (stdout); -1 when neither is there.
+double published(const std::string& out, const std::string& err) {
+  for (const auto& [file, key] : {std::pair<std::string, std::string>{err, "published "},
+                                  std::pair<std::string, std::string>{out, "END written="}}) {
+    std::ifstream in(file);
+    std::string line;
+    while (std::getline(in, line)) {
+      const auto p = line.find(key);
+      if (p != std::string::npos && (key != "published " || line.find(" samples;") != std::string::npos))
+        return std::atof(line.c_str() + p + key.size());
+    }
+  }
+  return -1;
+}
 
 }  // namespace
 
@@ -210,7 +227,9 @@ int main(int argc, char** argv) {
       sub = spawn({VE_BARE_READER, d, "100000"}, sub_out, (dir / (tag + ".sub.err")).string(), profiles);
       wait_for_line(sub_out, "READY", 10);
     }
-    Child pub = spawn(pub_args, (dir / (tag + ".out")).string(), (dir / (tag + ".err")).string(), profiles);
+    const std::string pub_out = (dir / (tag + ".out")).string(), pub_err = (dir / (tag + ".err")).string();
+    const auto t_spawn = std::chrono::steady_clock::now();
+    Child pub = spawn(pub_args, pub_out, pub_err, profiles);
     std::this_thread::sleep_for(std::chrono::duration<double>(warmup));
     const double p0 = cpu_seconds(pub.pid), s0 = with_sub ? cpu_seconds(sub.pid) : 0;
     const unsigned long long r0 = with_sub ? received(sub_out) : 0;
@@ -226,9 +245,18 @@ int main(int argc, char** argv) {
       if (s0 >= 0 && s1 >= 0) m.sub_cpu_pct = 100.0 * (s1 - s0) / dt;
       m.rx_per_s = static_cast<double>(r1 - r0) / (dt + 0.3);
     }
+    const auto t_stop = std::chrono::steady_clock::now();
     stop(pub);
     stop(sub);
-    std::fprintf(stderr, "  %-22s cpu %6.1f %%%s\n", tag.c_str(), m.cpu_pct,
+    const double n_pub = published(pub_out, pub_err);
+    if (n_pub >= 0) m.pub_per_s = n_pub / std::chrono::duration<double>(t_stop - t_spawn).count();
+    if (with_sub) {
+      std::ifstream in(dir / (tag + ".sub.err"));
+      const std::string e((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      if (e.find("maximum number of instances") != std::string::npos)
+        std::fprintf(stderr, "  %-22s the subscriber's reader reached its maximum number of instances\n", tag.c_str());
+    }
+    std::fprintf(stderr, "  %-22s cpu %6.1f %% published %.0f/s%s\n", tag.c_str(), m.cpu_pct, m.pub_per_s,
                  with_sub ? (" | subscriber " + std::to_string(m.sub_cpu_pct).substr(0, 5) + " %, received " +
                              std::to_string(static_cast<long long>(m.rx_per_s)) + "/s")
                                 .c_str()
@@ -281,23 +309,31 @@ int main(int argc, char** argv) {
      << "* floor: `ve_pace_floor`, threads that only wake at 4 kHz, paced like the product's; one thread, and one"
         " per axis.\n"
      << "* subscriber: `ve_bare_reader` (profile `ve_state_reader`) in its own process; its CPU and the samples"
-        " it received per second (N x 4000 when nothing is lost).\n"
-     << "* us/sample: the publisher's CPU divided by the samples it should publish (N x 4000 per second).\n\n"
+        " it received per second (N x 4000 when nothing is lost). That profile sets no resource limits, so its"
+        " reader keeps Fast DDS 2.9's default of at most 10 instances: with 16 axes it takes the samples of 10"
+        " (at most 40,000/s); the publisher still sends all 16 (docs/scale.md).\n"
+     << "* us/sample: the publisher's CPU divided by the samples it should publish (N x 4000 per second).\n"
+     << "* published/s: the samples the publisher says it published (`run`'s last log line, the bare writer's"
+        " END line), divided by its whole life from the exec (start-up included, so a little below N x 4000"
+        " when it kept its rate), without / with the subscriber.\n\n"
      << "| axes | `run` | `run` + sub | bare writer | bare writer + sub | floor, 1 thread | floor, N threads |"
-        " `run` us/sample | bare us/sample | received/s `run` / bare | subscriber CPU `run` / bare |\n"
-     << "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+        " `run` us/sample | bare us/sample | published/s `run` | published/s bare | received/s `run` / bare |"
+        " subscriber CPU `run` / bare |\n"
+     << "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
   auto pct = [](double v) {
     char b[32];
     std::snprintf(b, sizeof b, "%.1f %%", v);
     return std::string(b);
   };
   for (const auto& r : rows) {
-    char b[512];
+    char b[640];
     const double per = r.n * rate;
-    std::snprintf(b, sizeof b, "| %d | %s | %s | %s | %s | %s | %s | %.1f | %.1f | %.0f / %.0f | %s / %s |\n", r.n,
-                  pct(r.run.cpu_pct).c_str(), pct(r.run_sub.cpu_pct).c_str(), pct(r.bare.cpu_pct).c_str(),
+    std::snprintf(b, sizeof b,
+                  "| %d | %s | %s | %s | %s | %s | %s | %.1f | %.1f | %.0f / %.0f | %.0f / %.0f | %.0f / %.0f | %s / %s |\n",
+                  r.n, pct(r.run.cpu_pct).c_str(), pct(r.run_sub.cpu_pct).c_str(), pct(r.bare.cpu_pct).c_str(),
                   pct(r.bare_sub.cpu_pct).c_str(), pct(floor1.cpu_pct).c_str(), pct(r.floor_n.cpu_pct).c_str(),
-                  r.run.cpu_pct * 1e4 / per, r.bare.cpu_pct * 1e4 / per, r.run_sub.rx_per_s, r.bare_sub.rx_per_s,
+                  r.run.cpu_pct * 1e4 / per, r.bare.cpu_pct * 1e4 / per, r.run.pub_per_s, r.run_sub.pub_per_s,
+                  r.bare.pub_per_s, r.bare_sub.pub_per_s, r.run_sub.rx_per_s, r.bare_sub.rx_per_s,
                   pct(r.run_sub.sub_cpu_pct).c_str(), pct(r.bare_sub.sub_cpu_pct).c_str());
     md << b;
   }
