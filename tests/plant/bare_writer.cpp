@@ -10,7 +10,8 @@
 // The participant is made from the profile "ve_participant" and the writer from
 // "ve_state_writer" (FASTRTPS_DEFAULT_PROFILES_FILE, deploy/dds-profiles.xml: UDPv4 only,
 // best effort, keep last 1, a 5 ms offered deadline, as the product's state writers);
-// missing profiles are an error (exit 1). Defaults: 4000 Hz, until SIGINT/SIGTERM.
+// missing profiles are an error (exit 1); its resource limits are raised to AXES instances.
+// Defaults: 4000 Hz, until SIGINT/SIGTERM.
 // Prints "READY", and at the end "END written=W failed=F".
 #include <csignal>
 #include <time.h>
@@ -83,6 +84,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "bare_writer: no data_writer profile 've_state_writer'\n");
     return 1;
   }
+  // One writer, AXES instances: Fast DDS 2.9 keeps at most 10 instances per writer by default
+  // (the profile sets no resource limits; the product has one writer per axis, one instance).
+  wq.resource_limits().max_instances = axes;
+  wq.resource_limits().max_samples_per_instance = 1;
+  wq.resource_limits().max_samples = axes;
+  wq.resource_limits().allocated_samples = axes;
   fdds::DataWriter* writer = publisher->create_datawriter(topic, wq);
   if (writer == nullptr) return 1;
   std::printf("READY\n");
