@@ -8,6 +8,9 @@
 #include <cstdlib>
 #include <deque>
 #include <fstream>
+#include <iterator>
+#include <tuple>
+#include <type_traits>
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
@@ -87,9 +90,6 @@ double to_ms(const eprosima::fastrtps::Duration_t& d) {
 // Built-in QoS: the same values as deploy/dds-profiles.xml, used when the
 // profiles are not loaded. Reasons: docs/dds-interface.md.
 
-// Liveliness AUTOMATIC: the participant asserts it; a lease of 1 s offered, 2 s
-// requested (offered <= requested), announcements every 0.5 s (< lease, or Fast
-// DDS refuses the writer).
 // No endpoint of the product uses data sharing (a shared-memory delivery path
 // beside the transports, with the same dead-owner hazard: see udp_only()).
 template <class Q>
@@ -97,87 +97,164 @@ void no_data_sharing(Q& q) {
   q.data_sharing().off();
 }
 
-void automatic_liveliness(fdds::LivelinessQosPolicy& l, double lease_s, double announce_s) {
-  l.kind = fdds::AUTOMATIC_LIVELINESS_QOS;
-  l.lease_duration = duration_ms(lease_s * 1e3);
-  l.announcement_period = duration_ms(announce_s * 1e3);
+/// Reliability, durability and history: keep last `depth`, or keep all for depth 0.
+template <class Q>
+void delivery(Q& q, fdds::ReliabilityQosPolicyKind reliability, fdds::DurabilityQosPolicyKind durability,
+              std::int32_t depth) {
+  q.reliability().kind = reliability;
+  q.durability().kind = durability;
+  q.history().kind = depth > 0 ? fdds::KEEP_LAST_HISTORY_QOS : fdds::KEEP_ALL_HISTORY_QOS;
+  if (depth > 0) q.history().depth = depth;
+}
+
+/// A periodic stream: its deadline, and liveliness AUTOMATIC (the participant
+/// asserts it) with the lease and announcement period given: a lease of 1 s
+/// offered, 2 s requested (offered <= requested), announcements every 0.5 s
+/// (< lease, or Fast DDS refuses the writer).
+template <class Q>
+void periodic(Q& q, double deadline_ms, double lease_s, double announce_s) {
+  q.deadline().period = duration_ms(deadline_ms);
+  q.liveliness().kind = fdds::AUTOMATIC_LIVELINESS_QOS;
+  q.liveliness().lease_duration = duration_ms(lease_s * 1e3);
+  q.liveliness().announcement_period = duration_ms(announce_s * 1e3);
 }
 
 // The state stream: the newest sample is what a drive wants, a late retransmission
 // is worth nothing, so best effort with a history of one.
 void state_writer_defaults(fdds::DataWriterQos& q) {
-  q.reliability().kind = fdds::BEST_EFFORT_RELIABILITY_QOS;
-  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 1;
-  q.deadline().period = duration_ms(5.0);
-  automatic_liveliness(q.liveliness(), 1.0, 0.5);
+  delivery(q, fdds::BEST_EFFORT_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, 1);
+  periodic(q, 5.0, 1.0, 0.5);
   q.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
   q.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
 }
 
+// The reader's history per axis instance: 64 ms at 4 kHz. A listener drains it on
+// the receive thread; a consumer that takes from its own loop may be descheduled
+// for tens of ms without its history overwriting samples it has not taken yet.
 void state_reader_defaults(fdds::DataReaderQos& q) {
-  q.reliability().kind = fdds::BEST_EFFORT_RELIABILITY_QOS;
-  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  // Per axis instance: 64 ms at 4 kHz. A listener drains it on the receive thread;
-  // a consumer that takes from its own loop may be descheduled for tens of ms
-  // without its history overwriting samples it has not taken yet.
-  q.history().depth = transport::kStateReaderDepth;
-  q.deadline().period = duration_ms(10.0);
-  automatic_liveliness(q.liveliness(), 2.0, 1.0);
+  delivery(q, fdds::BEST_EFFORT_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, transport::kStateReaderDepth);
+  periodic(q, 10.0, 2.0, 1.0);
   q.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
 }
 
 // Diagnostics: 10 Hz, each one a summary worth having: reliable, newest only,
 // never blocking the axis thread for long.
 void diagnostics_writer_defaults(fdds::DataWriterQos& q) {
-  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
+  delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, 1);
   q.reliability().max_blocking_time = duration_ms(1.0);
-  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 1;
-  q.deadline().period = duration_ms(500.0);
-  automatic_liveliness(q.liveliness(), 1.0, 0.5);
+  periodic(q, 500.0, 1.0, 0.5);
   q.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
 }
 
 void diagnostics_reader_defaults(fdds::DataReaderQos& q) {
-  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
-  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 4;
-  q.deadline().period = duration_ms(1000.0);
-  automatic_liveliness(q.liveliness(), 2.0, 1.0);
+  delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, 4);
+  periodic(q, 1000.0, 2.0, 1.0);
 }
 
-// Late joiners must learn what each axis is: reliable, transient-local, last value per axis.
+// Late joiners must learn what each axis is, and the last calibration status of
+// each axis (progress and result; the writer never blocks the worker for long, a
+// status is superseded a fraction of a second later): reliable, transient-local,
+// last value per axis.
 template <class Q>
-void description_defaults(Q& q) {
-  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
-  q.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 1;
+void last_per_axis_defaults(Q& q) {
+  delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::TRANSIENT_LOCAL_DURABILITY_QOS, 1);
 }
 
 // Calibration commands: every request counts and none is replayed to a process
 // that starts later: reliable, keep all, volatile.
 template <class Q>
 void calibration_command_defaults(Q& q) {
-  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
-  q.durability().kind = fdds::VOLATILE_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_ALL_HISTORY_QOS;
+  delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, 0);
 }
 
-// Calibration status: progress and result, the last one per axis for a late
-// joiner: reliable, transient-local, keep last 1. The writer never blocks the
-// worker for long (a status is superseded a fraction of a second later).
-template <class Q>
-void calibration_status_defaults(Q& q) {
-  q.reliability().kind = fdds::RELIABLE_RELIABILITY_QOS;
-  q.durability().kind = fdds::TRANSIENT_LOCAL_DURABILITY_QOS;
-  q.history().kind = fdds::KEEP_LAST_HISTORY_QOS;
-  q.history().depth = 1;
+// Each topic once: the prefix of its profiles' names in deploy/dds-profiles.xml
+// (<prefix>_writer, <prefix>_reader), its entity in DdsContext, and the built-in
+// QoS of its writers and readers (used when the profiles are not loaded).
+struct TopicQos {
+  const char* profile_prefix;
+  fdds::Topic* (DdsContext::*topic)() const;
+  void (*writer_defaults)(fdds::DataWriterQos&);
+  void (*reader_defaults)(fdds::DataReaderQos&);
+};
+
+/// The sample types of the rows of kTopics, in that order.
+using TopicSamples = std::tuple<ve::dds::EncoderState, ve::dds::AxisDescription, ve::dds::Diagnostics,
+                                ve::dds::CalibrationCommand, ve::dds::CalibrationStatus>;
+const TopicQos kTopics[] = {
+    {"ve_state", &DdsContext::state_topic, state_writer_defaults, state_reader_defaults},
+    {"ve_description", &DdsContext::description_topic, last_per_axis_defaults, last_per_axis_defaults},
+    {"ve_diagnostics", &DdsContext::diagnostics_topic, diagnostics_writer_defaults, diagnostics_reader_defaults},
+    {"ve_calibration_command", &DdsContext::calibration_command_topic, calibration_command_defaults,
+     calibration_command_defaults},
+    {"ve_calibration_status", &DdsContext::calibration_status_topic, last_per_axis_defaults, last_per_axis_defaults},
+};
+static_assert(std::size(kTopics) == std::tuple_size_v<TopicSamples>);
+
+template <class Sample, std::size_t I = 0>
+constexpr std::size_t topic_index() {
+  if constexpr (std::is_same_v<Sample, std::tuple_element_t<I, TopicSamples>>)
+    return I;
+  else
+    return topic_index<Sample, I + 1>();
+}
+
+template <class Sample>
+const TopicQos& topic_qos() {
+  return kTopics[topic_index<Sample>()];
+}
+
+template <class Sample>
+fdds::Topic* topic_of(const DdsContext& ctx) {
+  return (ctx.*topic_qos<Sample>().topic)();
+}
+
+/// The QoS of Sample's writers (Q = DataWriterQos) or readers (DataReaderQos): the
+/// profile <prefix>_writer or <prefix>_reader when the profiles are loaded (true),
+/// else the built-in values (false). Needs the publisher or the subscriber.
+template <class Sample, class Q>
+bool endpoint_qos(DdsContext& ctx, Q& q) {
+  constexpr bool writer = std::is_same_v<Q, fdds::DataWriterQos>;
+  const TopicQos& t = topic_qos<Sample>();
+  const std::string name = std::string(t.profile_prefix) + (writer ? "_writer" : "_reader");
+  if constexpr (writer)
+    ctx.publisher()->get_default_datawriter_qos(q);
+  else
+    ctx.subscriber()->get_default_datareader_qos(q);
+  if (ctx.qos_from_profile(name, q)) return true;
+  if constexpr (writer)
+    t.writer_defaults(q);
+  else
+    t.reader_defaults(q);
+  return false;
+}
+
+/// Stops the writer's or reader's callbacks (before its listener goes away) and
+/// deletes it; nothing for null.
+template <class Entity>
+void delete_endpoint(DdsContext& ctx, Entity* e) {
+  if (e == nullptr) return;
+  e->set_listener(nullptr);
+  if constexpr (std::is_same_v<Entity, fdds::DataWriter>)
+    ctx.publisher()->delete_datawriter(e);
+  else
+    ctx.subscriber()->delete_datareader(e);
+}
+
+/// Takes every sample the reader holds; f(sample, info) for each valid one.
+template <class Sample, class F>
+void take_each(fdds::DataReader& reader, F&& f) {
+  fdds::SampleInfo info;
+  Sample sample;
+  while (reader.take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK)
+    if (info.valid_data) f(sample, info);
+}
+
+/// A reader of Sample's topic without a listener yet (it is attached once the
+/// listener knows the reader), without data sharing.
+template <class Sample>
+fdds::DataReader* create_reader(DdsContext& ctx, fdds::DataReaderQos& q) {
+  no_data_sharing(q);
+  return ctx.subscriber()->create_datareader(topic_of<Sample>(ctx), q, nullptr, fdds::StatusMask::none());
 }
 
 // The participant's transports when no profile is loaded (the same as
@@ -361,21 +438,23 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
   return ctx;
 }
 
-bool DdsContext::writer_qos_from_profile(const char* name, fdds::DataWriterQos& q) {
-  if (!profiles_loaded_ || publisher() == nullptr) return false;
-  fdds::DataWriterQos from;
-  if (publisher_->get_datawriter_qos_from_profile(name, from) != ReturnCode_t::RETCODE_OK) return false;
+template <class Q>
+bool DdsContext::qos_from_profile(const std::string& name, Q& q) {
+  constexpr bool writer = std::is_same_v<Q, fdds::DataWriterQos>;
+  if (!profiles_loaded_ || (writer ? publisher() == nullptr : subscriber() == nullptr)) return false;
+  Q from;
+  ReturnCode_t found;
+  if constexpr (writer)
+    found = publisher_->get_datawriter_qos_from_profile(name, from);
+  else
+    found = subscriber_->get_datareader_qos_from_profile(name, from);
+  if (found != ReturnCode_t::RETCODE_OK) return false;
   q = from;
   return true;
 }
 
-bool DdsContext::reader_qos_from_profile(const char* name, fdds::DataReaderQos& q) {
-  if (!profiles_loaded_ || subscriber() == nullptr) return false;
-  fdds::DataReaderQos from;
-  if (subscriber_->get_datareader_qos_from_profile(name, from) != ReturnCode_t::RETCODE_OK) return false;
-  q = from;
-  return true;
-}
+template bool DdsContext::qos_from_profile(const std::string&, fdds::DataWriterQos&);
+template bool DdsContext::qos_from_profile(const std::string&, fdds::DataReaderQos&);
 
 fdds::Publisher* DdsContext::publisher() {
   if (publisher_ == nullptr) publisher_ = participant_->create_publisher(fdds::PUBLISHER_QOS_DEFAULT);
@@ -452,12 +531,8 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
   auto* pub = ctx_.publisher();
   if (pub == nullptr) return;
   fdds::DataWriterQos q;
-  pub->get_default_datawriter_qos(q);
-  from_profile_ = ctx_.writer_qos_from_profile(profile::kStateWriter, q);
-  if (!from_profile_) {
-    state_writer_defaults(q);
-    if (deadline_ms <= 0) q.deadline().period = eprosima::fastrtps::c_TimeInfinite;
-  }
+  from_profile_ = endpoint_qos<ve::dds::EncoderState>(ctx_, q);
+  if (!from_profile_ && deadline_ms <= 0) q.deadline().period = eprosima::fastrtps::c_TimeInfinite;
   if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
   no_data_sharing(q);
   deadline_ms_ = to_ms(q.deadline().period);
@@ -481,11 +556,7 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
 }
 
 StateWriter::~StateWriter() {
-  for (auto& slot : slots_) {
-    if (slot->writer == nullptr) continue;
-    slot->writer->set_listener(nullptr);
-    ctx_.publisher()->delete_datawriter(slot->writer);
-  }
+  for (auto& slot : slots_) delete_endpoint(ctx_, slot->writer);
 }
 
 int StateWriter::add_axis(std::uint32_t axis_id, const std::string& name) {
@@ -599,9 +670,10 @@ std::uint64_t StateWriter::deadline_missed(std::uint32_t axis_id) const {
 
 int StateWriter::matched_readers() const { return listener_->matched_max(); }
 
-// ---------------------------------------------------------------- DiagnosticsWriter
+// ---------------------------------------------------------------- TopicWriter
 
-class DiagnosticsWriter::Listener : public fdds::DataWriterListener {
+template <class Sample>
+class TopicWriter<Sample>::Listener : public fdds::DataWriterListener {
  public:
   void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
     matched.store(s.current_count);
@@ -609,49 +681,79 @@ class DiagnosticsWriter::Listener : public fdds::DataWriterListener {
   std::atomic<int> matched{0};
 };
 
-DiagnosticsWriter::DiagnosticsWriter(DdsContext& ctx) : ctx_(ctx), listener_(std::make_unique<Listener>()) {
+template <class Sample>
+TopicWriter<Sample>::TopicWriter(DdsContext& ctx) : TopicEndpoint(ctx), listener_(std::make_unique<Listener>()) {
   auto* pub = ctx_.publisher();
   if (pub == nullptr) return;
   fdds::DataWriterQos q;
-  pub->get_default_datawriter_qos(q);
-  from_profile_ = ctx_.writer_qos_from_profile(profile::kDiagnosticsWriter, q);
-  if (!from_profile_) diagnostics_writer_defaults(q);
+  from_profile_ = endpoint_qos<Sample>(ctx_, q);
   no_data_sharing(q);
-  writer_ = pub->create_datawriter(ctx_.diagnostics_topic(), q, listener_.get(), fdds::StatusMask::publication_matched());
+  entity_ = pub->create_datawriter(topic_of<Sample>(ctx_), q, listener_.get(), fdds::StatusMask::publication_matched());
 }
 
-DiagnosticsWriter::~DiagnosticsWriter() {
-  if (writer_ != nullptr) {
-    writer_->set_listener(nullptr);
-    ctx_.publisher()->delete_datawriter(writer_);
+template <class Sample>
+TopicWriter<Sample>::~TopicWriter() {
+  delete_endpoint(ctx_, entity_);
+}
+
+template <class Sample>
+bool TopicWriter<Sample>::write(const Sample& sample) {
+  return entity_->write(const_cast<Sample*>(&sample));
+}
+
+template <class Sample>
+int TopicWriter<Sample>::matched_readers() const {
+  return listener_->matched.load();
+}
+
+template class TopicWriter<ve::dds::Diagnostics>;
+template class TopicWriter<ve::dds::AxisDescription>;
+template class TopicWriter<ve::dds::CalibrationStatus>;
+template class TopicWriter<ve::dds::CalibrationCommand>;
+
+// ---------------------------------------------------------------- TopicReader
+
+template <class Sample>
+class TopicReader<Sample>::Listener : public fdds::DataReaderListener {
+ public:
+  explicit Listener(Callback cb) : callback(std::move(cb)) {}
+  void on_data_available(fdds::DataReader* reader) override {
+    take_each<Sample>(*reader, [this](const Sample& sample, const fdds::SampleInfo&) {
+      if (callback) callback(sample);
+    });
   }
+  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& s) override {
+    matched.on_callback(s.current_count);
+  }
+  Callback callback;
+  MatchCount matched;
+};
+
+template <class Sample>
+TopicReader<Sample>::TopicReader(DdsContext& ctx, Callback on_sample)
+    : TopicEndpoint(ctx), listener_(std::make_unique<Listener>(std::move(on_sample))) {
+  if (ctx_.subscriber() == nullptr) return;
+  fdds::DataReaderQos q;
+  from_profile_ = endpoint_qos<Sample>(ctx_, q);
+  entity_ = create_reader<Sample>(ctx_, q);
+  if (entity_ == nullptr) return;
+  entity_->set_listener(listener_.get(), fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
+  listener_->on_data_available(entity_);
+  listener_->matched.sync(*entity_);
 }
 
-bool DiagnosticsWriter::write(const ve::dds::Diagnostics& d) {
-  return writer_->write(const_cast<ve::dds::Diagnostics*>(&d));
+template <class Sample>
+TopicReader<Sample>::~TopicReader() {
+  delete_endpoint(ctx_, entity_);
 }
 
-int DiagnosticsWriter::matched_readers() const { return listener_->matched.load(); }
-
-// ---------------------------------------------------------------- DescriptionWriter
-
-DescriptionWriter::DescriptionWriter(DdsContext& ctx) : ctx_(ctx) {
-  auto* pub = ctx_.publisher();
-  if (pub == nullptr) return;
-  fdds::DataWriterQos q;
-  pub->get_default_datawriter_qos(q);
-  if (!ctx_.writer_qos_from_profile(profile::kDescriptionWriter, q)) description_defaults(q);
-  no_data_sharing(q);
-  writer_ = pub->create_datawriter(ctx_.description_topic(), q);
+template <class Sample>
+int TopicReader<Sample>::matched_writers() const {
+  return listener_->matched.load();
 }
 
-DescriptionWriter::~DescriptionWriter() {
-  if (writer_ != nullptr) ctx_.publisher()->delete_datawriter(writer_);
-}
-
-bool DescriptionWriter::write(const ve::dds::AxisDescription& d) {
-  return writer_->write(const_cast<ve::dds::AxisDescription*>(&d));
-}
+template class TopicReader<ve::dds::CalibrationCommand>;
+template class TopicReader<ve::dds::CalibrationStatus>;
 
 // ---------------------------------------------------------------- StateReader
 
@@ -660,43 +762,33 @@ class StateReader::Listener : public fdds::DataReaderListener {
   Listener(Callback cb, DiagnosticsCallback dcb) : callback(std::move(cb)), diagnostics_callback(std::move(dcb)) {}
 
   void on_data_available(fdds::DataReader* reader) override {
-    fdds::SampleInfo info;
     if (reader == diagnostics_reader) {
-      ve::dds::Diagnostics diag;
-      while (reader->take_next_sample(&diag, &info) == ReturnCode_t::RETCODE_OK) {
-        if (!info.valid_data) continue;
+      take_each<ve::dds::Diagnostics>(*reader, [this](const ve::dds::Diagnostics& diag, const fdds::SampleInfo&) {
         {
           std::lock_guard<std::mutex> lock(mutex);
-          auto& a = axes[diag.axis_id()];
-          a.axis_id = diag.axis_id();
+          auto& a = axis(diag.axis_id());
           a.diagnostics = diag;
           ++a.diagnostics_received;
         }
         diagnostics_total.fetch_add(1);
         if (diagnostics_callback) diagnostics_callback(diag);
-      }
+      });
       return;
     }
     if (reader == description_reader) {
-      ve::dds::AxisDescription d;
-      while (reader->take_next_sample(&d, &info) == ReturnCode_t::RETCODE_OK) {
-        if (!info.valid_data) continue;
+      take_each<ve::dds::AxisDescription>(*reader, [this](const ve::dds::AxisDescription& d, const fdds::SampleInfo&) {
         std::lock_guard<std::mutex> lock(mutex);
-        auto& a = axes[d.axis_id()];
-        a.axis_id = d.axis_id();
+        auto& a = axis(d.axis_id());
         a.description = d;
         a.have_description = true;
-      }
+      });
       return;
     }
-    ve::dds::EncoderState s;
-    while (reader->take_next_sample(&s, &info) == ReturnCode_t::RETCODE_OK) {
-      if (!info.valid_data) continue;
+    take_each<ve::dds::EncoderState>(*reader, [this](const ve::dds::EncoderState& s, const fdds::SampleInfo& info) {
       const auto now = std::chrono::steady_clock::now();
       {
         std::lock_guard<std::mutex> lock(mutex);
-        auto& a = axes[s.axis_id()];
-        a.axis_id = s.axis_id();
+        auto& a = axis(s.axis_id());
         if (a.received > 0 && s.sequence_number() > a.last.sequence_number() + 1)
           a.sequence_gaps += s.sequence_number() - a.last.sequence_number() - 1;
         a.last = s;
@@ -719,7 +811,7 @@ class StateReader::Listener : public fdds::DataReaderListener {
       }
       total.fetch_add(1);
       if (callback) callback(s);
-    }
+    });
   }
 
   void on_requested_deadline_missed(fdds::DataReader*, const fdds::RequestedDeadlineMissedStatus& st) override {
@@ -742,6 +834,13 @@ class StateReader::Listener : public fdds::DataReaderListener {
   void on_subscription_matched(fdds::DataReader* reader, const fdds::SubscriptionMatchedStatus& st) override {
     if (reader == state_reader) matched.on_callback(st.current_count);
     if (reader == diagnostics_reader) diagnostics_matched.on_callback(st.current_count);
+  }
+
+  /// The statistics of an axis, from its first sample of any topic on. With the mutex held.
+  AxisStats& axis(std::uint32_t id) {
+    auto& a = axes[id];
+    a.axis_id = id;
+    return a;
   }
 
   Callback callback;
@@ -774,23 +873,17 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
                           << fdds::StatusMask::subscription_matched();
   // The readers are created without a listener and get it once the listener knows them.
   fdds::DataReaderQos sq;
-  sub->get_default_datareader_qos(sq);
-  if (!ctx_.reader_qos_from_profile(profile::kStateReader, sq)) state_reader_defaults(sq);
+  endpoint_qos<ve::dds::EncoderState>(ctx_, sq);
   sq.deadline().period = deadline_ms > 0 ? duration_ms(deadline_ms) : eprosima::fastrtps::c_TimeInfinite;
   listener_->deadline_ns = deadline_ms > 0 ? static_cast<std::int64_t>(std::llround(deadline_ms * 1e6)) : 0;
   fdds::DataReaderQos dq;
-  sub->get_default_datareader_qos(dq);
-  if (!ctx_.reader_qos_from_profile(profile::kDescriptionReader, dq)) description_defaults(dq);
+  endpoint_qos<ve::dds::AxisDescription>(ctx_, dq);
   fdds::DataReaderQos gq;
-  sub->get_default_datareader_qos(gq);
-  if (!ctx_.reader_qos_from_profile(profile::kDiagnosticsReader, gq)) diagnostics_reader_defaults(gq);
+  endpoint_qos<ve::dds::Diagnostics>(ctx_, gq);
 
-  no_data_sharing(sq);
-  state_reader_ = sub->create_datareader(ctx_.state_topic(), sq, nullptr, fdds::StatusMask::none());
-  no_data_sharing(dq);
-  description_reader_ = sub->create_datareader(ctx_.description_topic(), dq, nullptr, fdds::StatusMask::none());
-  no_data_sharing(gq);
-  diagnostics_reader_ = sub->create_datareader(ctx_.diagnostics_topic(), gq, nullptr, fdds::StatusMask::none());
+  state_reader_ = create_reader<ve::dds::EncoderState>(ctx_, sq);
+  description_reader_ = create_reader<ve::dds::AxisDescription>(ctx_, dq);
+  diagnostics_reader_ = create_reader<ve::dds::Diagnostics>(ctx_, gq);
   listener_->state_reader = state_reader_;
   listener_->description_reader = description_reader_;
   listener_->diagnostics_reader = diagnostics_reader_;
@@ -807,12 +900,7 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
 }
 
 StateReader::~StateReader() {
-  // Stop callbacks before the listener goes away.
-  for (auto* r : {state_reader_, description_reader_, diagnostics_reader_}) {
-    if (r == nullptr) continue;
-    r->set_listener(nullptr);
-    ctx_.subscriber()->delete_datareader(r);
-  }
+  for (auto* r : {state_reader_, description_reader_, diagnostics_reader_}) delete_endpoint(ctx_, r);
 }
 
 std::vector<AxisStats> StateReader::snapshot() {
@@ -837,169 +925,27 @@ std::uint64_t StateReader::diagnostics_received() const { return listener_->diag
 
 // ---------------------------------------------------------------- calibration
 
-class CalibrationCommandReader::Listener : public fdds::DataReaderListener {
- public:
-  explicit Listener(Callback cb) : callback(std::move(cb)) {}
-  void on_data_available(fdds::DataReader* reader) override {
-    fdds::SampleInfo info;
-    ve::dds::CalibrationCommand c;
-    while (reader->take_next_sample(&c, &info) == ReturnCode_t::RETCODE_OK) {
-      if (!info.valid_data) continue;
-      if (callback) callback(c);
-    }
-  }
-  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& s) override {
-    matched.store(s.current_count);
-  }
-  Callback callback;
-  std::atomic<int> matched{0};
-};
-
-CalibrationCommandReader::CalibrationCommandReader(DdsContext& ctx, Callback on_command)
-    : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_command))) {
-  auto* sub = ctx_.subscriber();
-  if (sub == nullptr) return;
-  fdds::DataReaderQos q;
-  sub->get_default_datareader_qos(q);
-  from_profile_ = ctx_.reader_qos_from_profile(profile::kCalibrationCommandReader, q);
-  if (!from_profile_) calibration_command_defaults(q);
-  no_data_sharing(q);
-  reader_ = sub->create_datareader(ctx_.calibration_command_topic(), q, listener_.get(),
-                                   fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
-}
-
-CalibrationCommandReader::~CalibrationCommandReader() {
-  if (reader_ == nullptr) return;
-  reader_->set_listener(nullptr);
-  ctx_.subscriber()->delete_datareader(reader_);
-}
-
-int CalibrationCommandReader::matched_writers() const { return listener_->matched.load(); }
-
-class CalibrationStatusWriter::Listener : public fdds::DataWriterListener {
- public:
-  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
-    matched.store(s.current_count);
-  }
-  std::atomic<int> matched{0};
-};
-
-CalibrationStatusWriter::CalibrationStatusWriter(DdsContext& ctx) : ctx_(ctx), listener_(std::make_unique<Listener>()) {
-  auto* pub = ctx_.publisher();
-  if (pub == nullptr) return;
-  fdds::DataWriterQos q;
-  pub->get_default_datawriter_qos(q);
-  from_profile_ = ctx_.writer_qos_from_profile(profile::kCalibrationStatusWriter, q);
-  if (!from_profile_) calibration_status_defaults(q);
-  no_data_sharing(q);
-  writer_ = pub->create_datawriter(ctx_.calibration_status_topic(), q, listener_.get(),
-                                   fdds::StatusMask::publication_matched());
-}
-
-CalibrationStatusWriter::~CalibrationStatusWriter() {
-  if (writer_ == nullptr) return;
-  writer_->set_listener(nullptr);
-  ctx_.publisher()->delete_datawriter(writer_);
-}
-
-bool CalibrationStatusWriter::write(const ve::dds::CalibrationStatus& s) {
-  return writer_->write(const_cast<ve::dds::CalibrationStatus*>(&s));
-}
-
-int CalibrationStatusWriter::matched_readers() const { return listener_->matched.load(); }
-
-class CalibrationCommandWriter::Listener : public fdds::DataWriterListener {
- public:
-  void on_publication_matched(fdds::DataWriter*, const fdds::PublicationMatchedStatus& s) override {
-    matched.store(s.current_count);
-  }
-  std::atomic<int> matched{0};
-};
-
-CalibrationCommandWriter::CalibrationCommandWriter(DdsContext& ctx)
-    : ctx_(ctx), listener_(std::make_unique<Listener>()) {
-  auto* pub = ctx_.publisher();
-  if (pub == nullptr) return;
-  fdds::DataWriterQos q;
-  pub->get_default_datawriter_qos(q);
-  if (!ctx_.writer_qos_from_profile(profile::kCalibrationCommandWriter, q)) calibration_command_defaults(q);
-  no_data_sharing(q);
-  writer_ = pub->create_datawriter(ctx_.calibration_command_topic(), q, listener_.get(),
-                                   fdds::StatusMask::publication_matched());
-}
-
-CalibrationCommandWriter::~CalibrationCommandWriter() {
-  if (writer_ == nullptr) return;
-  writer_->set_listener(nullptr);
-  ctx_.publisher()->delete_datawriter(writer_);
-}
-
-bool CalibrationCommandWriter::write(const ve::dds::CalibrationCommand& c) {
-  return writer_->write(const_cast<ve::dds::CalibrationCommand*>(&c));
-}
-
-int CalibrationCommandWriter::matched_readers() const { return listener_->matched.load(); }
-
-class CalibrationStatusReader::Listener : public fdds::DataReaderListener {
- public:
-  explicit Listener(Callback cb) : callback(std::move(cb)) {}
-  void on_data_available(fdds::DataReader* reader) override {
-    fdds::SampleInfo info;
-    ve::dds::CalibrationStatus s;
-    while (reader->take_next_sample(&s, &info) == ReturnCode_t::RETCODE_OK) {
-      if (!info.valid_data) continue;
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        all.push_back(s);
-        last[s.axis_id()] = s;
-      }
-      if (callback) callback(s);
-    }
-  }
-  void on_subscription_matched(fdds::DataReader*, const fdds::SubscriptionMatchedStatus& s) override {
-    matched.on_callback(s.current_count);
-  }
-  Callback callback;
-  std::mutex mutex;
-  std::vector<ve::dds::CalibrationStatus> all;
-  std::map<std::uint32_t, ve::dds::CalibrationStatus> last;
-  MatchCount matched;
-};
-
 CalibrationStatusReader::CalibrationStatusReader(DdsContext& ctx, Callback on_status)
-    : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_status))) {
-  auto* sub = ctx_.subscriber();
-  if (sub == nullptr) return;
-  fdds::DataReaderQos q;
-  sub->get_default_datareader_qos(q);
-  if (!ctx_.reader_qos_from_profile(profile::kCalibrationStatusReader, q)) calibration_status_defaults(q);
-  // Created without a listener, then given one and drained: transient-local
-  // samples that arrive in between are not lost.
-  no_data_sharing(q);
-  reader_ = sub->create_datareader(ctx_.calibration_status_topic(), q, nullptr, fdds::StatusMask::none());
-  if (reader_ == nullptr) return;
-  reader_->set_listener(listener_.get(), fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched());
-  listener_->on_data_available(reader_);
-  listener_->matched.sync(*reader_);
-}
+    : on_status_(std::move(on_status)), reader_(ctx, [this](const ve::dds::CalibrationStatus& s) { keep(s); }) {}
 
-CalibrationStatusReader::~CalibrationStatusReader() {
-  if (reader_ == nullptr) return;
-  reader_->set_listener(nullptr);
-  ctx_.subscriber()->delete_datareader(reader_);
+void CalibrationStatusReader::keep(const ve::dds::CalibrationStatus& s) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    all_.push_back(s);
+    last_[s.axis_id()] = s;
+  }
+  if (on_status_) on_status_(s);
 }
-
-int CalibrationStatusReader::matched_writers() const { return listener_->matched.load(); }
 
 std::vector<ve::dds::CalibrationStatus> CalibrationStatusReader::received() {
-  std::lock_guard<std::mutex> lock(listener_->mutex);
-  return listener_->all;
+  std::lock_guard<std::mutex> lock(mutex_);
+  return all_;
 }
 
 bool CalibrationStatusReader::last(std::uint32_t axis_id, ve::dds::CalibrationStatus& out) {
-  std::lock_guard<std::mutex> lock(listener_->mutex);
-  const auto it = listener_->last.find(axis_id);
-  if (it == listener_->last.end()) return false;
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = last_.find(axis_id);
+  if (it == last_.end()) return false;
   out = it->second;
   return true;
 }

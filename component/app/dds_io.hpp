@@ -35,7 +35,10 @@ inline constexpr const char* kDiagnosticsTopic = "ve/diagnostics";
 inline constexpr const char* kCalibrationCommandTopic = "ve/calibration_command";
 inline constexpr const char* kCalibrationStatusTopic = "ve/calibration_status";
 
-/// Profile names in deploy/dds-profiles.xml.
+/// Participant profile names in deploy/dds-profiles.xml. A topic's writers and
+/// readers take the profiles <prefix>_writer and <prefix>_reader (ve_state_writer
+/// and ve_state_reader for ve/encoder_state; the prefixes are in the table of
+/// topics in dds_io.cpp).
 namespace profile {
 inline constexpr const char* kParticipant = "ve_participant";
 /// Shared memory only: not in the shipped profiles (a killed shared-memory peer can
@@ -43,16 +46,6 @@ inline constexpr const char* kParticipant = "ve_participant";
 inline constexpr const char* kParticipantShm = "ve_participant_shm";
 /// UDPv4 only, the same as kParticipant.
 inline constexpr const char* kParticipantUdp = "ve_participant_udp";
-inline constexpr const char* kStateWriter = "ve_state_writer";
-inline constexpr const char* kStateReader = "ve_state_reader";
-inline constexpr const char* kDiagnosticsWriter = "ve_diagnostics_writer";
-inline constexpr const char* kDiagnosticsReader = "ve_diagnostics_reader";
-inline constexpr const char* kDescriptionWriter = "ve_description_writer";
-inline constexpr const char* kDescriptionReader = "ve_description_reader";
-inline constexpr const char* kCalibrationCommandWriter = "ve_calibration_command_writer";
-inline constexpr const char* kCalibrationCommandReader = "ve_calibration_command_reader";
-inline constexpr const char* kCalibrationStatusWriter = "ve_calibration_status_writer";
-inline constexpr const char* kCalibrationStatusReader = "ve_calibration_status_reader";
 }  // namespace profile
 
 /// Buffer sizes of the product's transport (built-in QoS; the same values as the
@@ -114,9 +107,10 @@ class DdsContext {
 
   /// The participant was made from the "ve_participant" profile (else built-in QoS).
   bool participant_from_profile() const { return participant_from_profile_; }
-  /// Fill `q` from a named profile; false (q untouched) when no such profile is loaded.
-  bool writer_qos_from_profile(const char* name, eprosima::fastdds::dds::DataWriterQos& q);
-  bool reader_qos_from_profile(const char* name, eprosima::fastdds::dds::DataReaderQos& q);
+  /// Fill `q` (a DataWriterQos or a DataReaderQos) from a named profile; false (q
+  /// untouched) when no such profile is loaded.
+  template <class Q>
+  bool qos_from_profile(const std::string& name, Q& q);
 
  private:
   DdsContext() = default;
@@ -198,37 +192,64 @@ class StateWriter {
   std::int64_t deadline_ns_ = 0;
 };
 
-/// Writer of ve/diagnostics (about 10 Hz per axis, reliable keep-last).
-class DiagnosticsWriter {
+/// What the writer and the reader of one topic share: the Fast DDS entity (null
+/// when it could not be made) and whether its QoS came from a profile.
+template <class Entity>
+class TopicEndpoint {
  public:
-  explicit DiagnosticsWriter(DdsContext& ctx);
-  ~DiagnosticsWriter();
-  bool ok() const { return writer_ != nullptr; }
+  TopicEndpoint(const TopicEndpoint&) = delete;
+  TopicEndpoint& operator=(const TopicEndpoint&) = delete;
+  bool ok() const { return entity_ != nullptr; }
   bool from_profile() const { return from_profile_; }
-  /// Thread-safe.
-  bool write(const ve::dds::Diagnostics& d);
+
+ protected:
+  explicit TopicEndpoint(DdsContext& ctx) : ctx_(ctx) {}
+  ~TopicEndpoint() = default;
+  DdsContext& ctx_;
+  Entity* entity_ = nullptr;
+  bool from_profile_ = false;
+};
+
+/// The writer of one topic (Sample: its IDL type): QoS from the topic's writer
+/// profile in deploy/dds-profiles.xml when the profiles are loaded, else the
+/// identical built-in values; counts the readers matched. write() is thread-safe
+/// (Fast DDS serialises writes per writer).
+template <class Sample>
+class TopicWriter : public TopicEndpoint<eprosima::fastdds::dds::DataWriter> {
+ public:
+  explicit TopicWriter(DdsContext& ctx);
+  ~TopicWriter();
+  bool write(const Sample& sample);
   int matched_readers() const;
 
  private:
   class Listener;
-  DdsContext& ctx_;
   std::unique_ptr<Listener> listener_;
-  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
-  bool from_profile_ = false;
 };
 
-/// Writer of ve/axis_description (reliable, transient-local).
-class DescriptionWriter {
+/// The reader of one topic: QoS from the topic's reader profile when the profiles
+/// are loaded, else the built-in values; `on_sample` is called for each valid
+/// sample on the Fast DDS listener thread (keep it short). The reader is made
+/// without a listener, then given one and drained, so that samples that arrive
+/// in between (transient local) are not lost; counts the writers matched.
+template <class Sample>
+class TopicReader : public TopicEndpoint<eprosima::fastdds::dds::DataReader> {
  public:
-  explicit DescriptionWriter(DdsContext& ctx);
-  ~DescriptionWriter();
-  bool ok() const { return writer_ != nullptr; }
-  bool write(const ve::dds::AxisDescription& d);
+  using Callback = std::function<void(const Sample&)>;
+  explicit TopicReader(DdsContext& ctx, Callback on_sample = {});
+  ~TopicReader();
+  int matched_writers() const;
 
  private:
-  DdsContext& ctx_;
-  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
+  class Listener;
+  std::unique_ptr<Listener> listener_;
 };
+
+/// Writer of ve/diagnostics (about 10 Hz per axis, reliable keep-last).
+class DiagnosticsWriter : public TopicWriter<ve::dds::Diagnostics> { public: using TopicWriter::TopicWriter; };
+
+/// Writer of ve/axis_description (reliable, transient-local).
+class DescriptionWriter : public TopicWriter<ve::dds::AxisDescription> { public: using TopicWriter::TopicWriter; };
 
 /// Per-axis statistics a subscriber keeps.
 struct AxisStats {
@@ -280,58 +301,13 @@ class StateReader {
 // ------------------------------------------------------------- calibration
 
 /// Reader of ve/calibration_command (run side: reliable, keep all, volatile).
-/// `on_command` is called on the Fast DDS listener thread; keep it short.
-class CalibrationCommandReader {
- public:
-  using Callback = std::function<void(const ve::dds::CalibrationCommand&)>;
-  CalibrationCommandReader(DdsContext& ctx, Callback on_command);
-  ~CalibrationCommandReader();
-  bool ok() const { return reader_ != nullptr; }
-  bool from_profile() const { return from_profile_; }
-  int matched_writers() const;
-
- private:
-  class Listener;
-  DdsContext& ctx_;
-  std::unique_ptr<Listener> listener_;
-  eprosima::fastdds::dds::DataReader* reader_ = nullptr;
-  bool from_profile_ = false;
-};
+class CalibrationCommandReader : public TopicReader<ve::dds::CalibrationCommand> { public: using TopicReader::TopicReader; };
 
 /// Writer of ve/calibration_status (run side: reliable, transient-local, last per axis).
-class CalibrationStatusWriter {
- public:
-  explicit CalibrationStatusWriter(DdsContext& ctx);
-  ~CalibrationStatusWriter();
-  bool ok() const { return writer_ != nullptr; }
-  bool from_profile() const { return from_profile_; }
-  /// Thread-safe.
-  bool write(const ve::dds::CalibrationStatus& s);
-  int matched_readers() const;
-
- private:
-  class Listener;
-  DdsContext& ctx_;
-  std::unique_ptr<Listener> listener_;
-  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
-  bool from_profile_ = false;
-};
+class CalibrationStatusWriter : public TopicWriter<ve::dds::CalibrationStatus> { public: using TopicWriter::TopicWriter; };
 
 /// Writer of ve/calibration_command (requester side: a tool, an HMI, the tests).
-class CalibrationCommandWriter {
- public:
-  explicit CalibrationCommandWriter(DdsContext& ctx);
-  ~CalibrationCommandWriter();
-  bool ok() const { return writer_ != nullptr; }
-  bool write(const ve::dds::CalibrationCommand& c);
-  int matched_readers() const;
-
- private:
-  class Listener;
-  DdsContext& ctx_;
-  std::unique_ptr<Listener> listener_;
-  eprosima::fastdds::dds::DataWriter* writer_ = nullptr;
-};
+class CalibrationCommandWriter : public TopicWriter<ve::dds::CalibrationCommand> { public: using TopicWriter::TopicWriter; };
 
 /// Reader of ve/calibration_status (requester side). Keeps every status received
 /// (in order) and the last one per axis; a late joiner gets the last status of
@@ -340,18 +316,26 @@ class CalibrationStatusReader {
  public:
   using Callback = std::function<void(const ve::dds::CalibrationStatus&)>;
   explicit CalibrationStatusReader(DdsContext& ctx, Callback on_status = {});
-  ~CalibrationStatusReader();
-  bool ok() const { return reader_ != nullptr; }
-  int matched_writers() const;
+  bool ok() const { return reader_.ok(); }
+  int matched_writers() const { return reader_.matched_writers(); }
   std::vector<ve::dds::CalibrationStatus> received();
   /// False when no status of this axis has arrived.
   bool last(std::uint32_t axis_id, ve::dds::CalibrationStatus& out);
 
  private:
-  class Listener;
-  DdsContext& ctx_;
-  std::unique_ptr<Listener> listener_;
-  eprosima::fastdds::dds::DataReader* reader_ = nullptr;
+  void keep(const ve::dds::CalibrationStatus& s);
+  Callback on_status_;
+  std::mutex mutex_;
+  std::vector<ve::dds::CalibrationStatus> all_;
+  std::map<std::uint32_t, ve::dds::CalibrationStatus> last_;
+  TopicReader<ve::dds::CalibrationStatus> reader_;  ///< last: its callbacks use the members above
 };
+
+extern template class TopicWriter<ve::dds::Diagnostics>;
+extern template class TopicWriter<ve::dds::AxisDescription>;
+extern template class TopicWriter<ve::dds::CalibrationStatus>;
+extern template class TopicWriter<ve::dds::CalibrationCommand>;
+extern template class TopicReader<ve::dds::CalibrationCommand>;
+extern template class TopicReader<ve::dds::CalibrationStatus>;
 
 }  // namespace ve::app
