@@ -127,6 +127,41 @@ void add_log_level(CLI::App* app, std::string& level) {
       ->type_name("LEVEL");
 }
 
+constexpr const char* kMachineFileHelp = "Machine file (default: the built-in simulator machine)";
+
+/// A subcommand of `app`, with its own --log-level.
+CLI::App* add_subcommand(CLI::App& app, const std::string& name, const std::string& description,
+                         std::string& log_level) {
+  auto* cmd = app.add_subcommand(name, description);
+  add_log_level(cmd, log_level);
+  return cmd;
+}
+
+/// --config,-c FILE: the machine file.
+void add_config(CLI::App* cmd, std::string& file, const std::string& help = kMachineFileHelp) {
+  cmd->add_option("--config,-c", file, help)->type_name("FILE");
+}
+
+/// --config,-c FILE and --axis,-a NAME: an axis of a machine file.
+void add_machine_axis(CLI::App* cmd, std::string& file, std::string& axis,
+                      const std::string& help = kMachineFileHelp) {
+  add_config(cmd, file, help);
+  cmd->add_option("--axis,-a", axis, "Axis name (default: the first)")->type_name("NAME");
+}
+
+/// --domain,-d ID: a DDS domain [0, 232] over the machine file's (-1: not given).
+void add_domain(CLI::App* cmd, int& domain, const std::string& help) {
+  cmd->add_option("--domain,-d", domain, help)->check(CLI::Range(0, 232))->type_name("ID");
+}
+
+/// --duration SECONDS: how long the subcommand runs; 0: no limit.
+void add_duration(CLI::App* cmd, double& seconds, const std::string& help) {
+  cmd->add_option("--duration", seconds, help)
+      ->check(number(0, kMaxDurationS, "s"))
+      ->type_name("SECONDS")
+      ->capture_default_str();
+}
+
 }  // namespace
 
 const char* const kMonitorTableLegend =
@@ -191,17 +226,10 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
   // ---- run
   RunOptions& run = cl.run;
   int run_domain = -1;
-  auto* run_cmd = app.add_subcommand("run", "Estimate and publish every axis of a machine over DDS");
-  add_log_level(run_cmd, cl.log_level);
-  run_cmd->add_option("--config,-c", run.config, "Machine file (default: the built-in simulator machine)")
-      ->type_name("FILE");
-  run_cmd->add_option("--domain,-d", run_domain, "DDS domain, overrides dds.domain [0, 232]")
-      ->check(CLI::Range(0, 232))
-      ->type_name("ID");
-  run_cmd->add_option("--duration", run.duration_s, "Stop after this many seconds; 0: run until SIGINT/SIGTERM")
-      ->check(number(0, kMaxDurationS, "s"))
-      ->type_name("SECONDS")
-      ->capture_default_str();
+  auto* run_cmd = add_subcommand(app, "run", "Estimate and publish every axis of a machine over DDS", cl.log_level);
+  add_config(run_cmd, run.config);
+  add_domain(run_cmd, run_domain, "DDS domain, overrides dds.domain [0, 232]");
+  add_duration(run_cmd, run.duration_s, "Stop after this many seconds; 0: run until SIGINT/SIGTERM");
   run_cmd->add_option("--wait-for-subscriber", run.wait_for_subscriber_s,
                       "Wait up to this many seconds for a first subscriber before starting the sensors; 0: start at "
                       "once")
@@ -230,19 +258,16 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
 
   // ---- check
   CheckOptions& check = cl.check;
-  auto* check_cmd = app.add_subcommand("check", "Validate a machine file, its motor files and calibrations");
-  add_log_level(check_cmd, cl.log_level);
-  check_cmd->add_option("--config,-c", check.config, "Machine file (default: the built-in simulator machine)")
-      ->type_name("FILE");
+  auto* check_cmd =
+      add_subcommand(app, "check", "Validate a machine file, its motor files and calibrations", cl.log_level);
+  add_config(check_cmd, check.config);
   check_cmd->footer(env_footer(""));
 
   // ---- calibrate
   CalibrateOptions& cal = cl.calibrate;
-  auto* cal_cmd = app.add_subcommand("calibrate", "Build an axis' Hall table from a reference sweep of the simulator");
-  add_log_level(cal_cmd, cl.log_level);
-  cal_cmd->add_option("--config,-c", cal.config, "Machine file (default: the built-in simulator machine)")
-      ->type_name("FILE");
-  cal_cmd->add_option("--axis,-a", cal.axis, "Axis name (default: the first)")->type_name("NAME");
+  auto* cal_cmd = add_subcommand(app, "calibrate", "Build an axis' Hall table from a reference sweep of the simulator",
+                                 cl.log_level);
+  add_machine_axis(cal_cmd, cal.config, cal.axis);
   cal_cmd->add_option("--out,-o", cal.out,
                       "Calibration file to write (default: the axis' calibration file); the report and plots go "
                       "beside it")
@@ -273,17 +298,10 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
   // ---- monitor
   MonitorOptions& mon = cl.monitor;
   int mon_domain = -1;
-  auto* mon_cmd = app.add_subcommand("monitor", "Show every axis on the DDS domain live");
-  add_log_level(mon_cmd, cl.log_level);
-  mon_cmd->add_option("--config,-c", mon.config, "Machine file to take the domain and profiles from")
-      ->type_name("FILE");
-  mon_cmd->add_option("--domain,-d", mon_domain, "DDS domain, overrides the config [0, 232]")
-      ->check(CLI::Range(0, 232))
-      ->type_name("ID");
-  mon_cmd->add_option("--duration", mon.duration_s, "Stop after this many seconds; 0: until SIGINT/SIGTERM")
-      ->check(number(0, kMaxDurationS, "s"))
-      ->type_name("SECONDS")
-      ->capture_default_str();
+  auto* mon_cmd = add_subcommand(app, "monitor", "Show every axis on the DDS domain live", cl.log_level);
+  add_config(mon_cmd, mon.config, "Machine file to take the domain and profiles from");
+  add_domain(mon_cmd, mon_domain, "DDS domain, overrides the config [0, 232]");
+  add_duration(mon_cmd, mon.duration_s, "Stop after this many seconds; 0: until SIGINT/SIGTERM");
   mon_cmd->add_flag("--csv", mon.csv, "Stream every sample as CSV on stdout instead of the live table");
   mon_cmd->add_option("--deadline-ms", mon.deadline_ms,
                       "Requested deadline; 0: twice the offered one of the machine file")
@@ -297,21 +315,15 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
 
   // ---- record
   RecordOptions& rec = cl.record;
-  auto* rec_cmd = app.add_subcommand("record", "Write an axis' raw sensor samples to a raw log v1 (CSV)");
-  add_log_level(rec_cmd, cl.log_level);
-  rec_cmd->add_option("--config,-c", rec.config, "Machine file (default: the built-in simulator machine)")
-      ->type_name("FILE");
-  rec_cmd->add_option("--axis,-a", rec.axis, "Axis name (default: the first)")->type_name("NAME");
+  auto* rec_cmd =
+      add_subcommand(app, "record", "Write an axis' raw sensor samples to a raw log v1 (CSV)", cl.log_level);
+  add_machine_axis(rec_cmd, rec.config, rec.axis);
   rec_cmd->add_option("--out,-o", rec.out,
                       "Log file to write (written as FILE.partial, renamed when complete; an existing device or "
                       "FIFO such as /dev/stdout is written directly)")
       ->required()
       ->type_name("FILE");
-  rec_cmd->add_option("--duration", rec.duration_s,
-                      "Seconds of samples to record; 0: until the source ends or SIGINT/SIGTERM")
-      ->check(number(0, kMaxDurationS, "s"))
-      ->type_name("SECONDS")
-      ->capture_default_str();
+  add_duration(rec_cmd, rec.duration_s, "Seconds of samples to record; 0: until the source ends or SIGINT/SIGTERM");
   rec_cmd->add_option("--first-sample-timeout", rec.first_sample_timeout_s,
                       "Give up (exit 1) when the source delivers no first sample within this many seconds (a live "
                       "CAN bus that is silent)")
@@ -324,13 +336,11 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
   // ---- evaluate
   EvaluateOptions& ev = cl.evaluate;
   double home_m = 0.0;
-  auto* ev_cmd = app.add_subcommand("evaluate",
-                                    "Run the estimator over a raw log and score it against its truth or its reference "
-                                    "ruler, or check its consistency");
-  add_log_level(ev_cmd, cl.log_level);
-  ev_cmd->add_option("--config,-c", ev.config, "Machine file (default: the built-in simulator machine)")
-      ->type_name("FILE");
-  ev_cmd->add_option("--axis,-a", ev.axis, "Axis name (default: the first)")->type_name("NAME");
+  auto* ev_cmd = add_subcommand(app, "evaluate",
+                                "Run the estimator over a raw log and score it against its truth or its reference "
+                                "ruler, or check its consistency",
+                                cl.log_level);
+  add_machine_axis(ev_cmd, ev.config, ev.axis);
   ev_cmd->add_option("--log,-l", ev.log, "Raw log v1 (with truth columns, a ref_position_m column, or neither)")
       ->required()
       ->type_name("FILE");
@@ -363,20 +373,16 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
 
   // ---- sensor-node
   SensorNodeOptions& node = cl.sensor_node;
-  auto* node_cmd = app.add_subcommand("sensor-node",
-                                      "Emulate a CAN sensor node: send the simulated axis' samples in a frame layout");
-  add_log_level(node_cmd, cl.log_level);
-  node_cmd->add_option("--config,-c", node.config, "Machine file with a simulated axis (default: the built-in one)")
-      ->type_name("FILE");
-  node_cmd->add_option("--axis,-a", node.axis, "Axis name (default: the first)")->type_name("NAME");
+  auto* node_cmd = add_subcommand(app, "sensor-node",
+                                  "Emulate a CAN sensor node: send the simulated axis' samples in a frame layout",
+                                  cl.log_level);
+  add_machine_axis(node_cmd, node.config, node.axis,
+                   "Machine file with a simulated axis (default: the built-in one)");
   node_cmd->add_option("--can", node.can, "CAN interface to send on")->type_name("IFACE")->capture_default_str();
   node_cmd->add_option("--layout,-l", node.layout, "Frame layout file (config/can/*.yaml)")
       ->required()
       ->type_name("FILE");
-  node_cmd->add_option("--duration", node.duration_s, "Stop after this many seconds; 0: until SIGINT/SIGTERM")
-      ->check(number(0, kMaxDurationS, "s"))
-      ->type_name("SECONDS")
-      ->capture_default_str();
+  add_duration(node_cmd, node.duration_s, "Stop after this many seconds; 0: until SIGINT/SIGTERM");
   node_cmd->add_option("--drop-at", node.drop_at, "Fault injection: first frame (counter) not sent")
       ->check(number(0, 1e15, "frames"))
       ->type_name("FRAME");

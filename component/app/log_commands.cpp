@@ -50,16 +50,22 @@ const config::AxisConfig* axis_named(const config::MachineConfig& m, const std::
   return nullptr;
 }
 
+/// The machine file (or the built-in machine) into `machine`, and its axis named
+/// `name` (the first when empty); null, with the reason on stderr, when either fails.
+const config::AxisConfig* load_axis(const std::string& path, const std::string& name,
+                                    config::MachineConfig& machine) {
+  if (!load(path, machine)) return nullptr;
+  const config::AxisConfig* axis = axis_named(machine, name);
+  if (axis == nullptr) std::fprintf(stderr, "no axis '%s' in %s\n", name.c_str(), machine.source.c_str());
+  return axis;
+}
+
 }  // namespace
 
 int record_command(const RecordOptions& options) {
   config::MachineConfig machine;
-  if (!load(options.config, machine)) return 2;
-  const config::AxisConfig* axis = axis_named(machine, options.axis);
-  if (axis == nullptr) {
-    std::fprintf(stderr, "no axis '%s' in %s\n", options.axis.c_str(), machine.source.c_str());
-    return 2;
-  }
+  const config::AxisConfig* axis = load_axis(options.config, options.axis, machine);
+  if (axis == nullptr) return 2;
   std::string error;
   auto source = make_source(*axis, options.fast ? SourceTiming::as_fast_as_possible : SourceTiming::as_configured, error);
   if (!source) {
@@ -629,12 +635,8 @@ int evaluate_command(const EvaluateOptions& options) {
     return 2;
   }
   config::MachineConfig machine;
-  if (!load(options.config, machine)) return 2;
-  const config::AxisConfig* found = axis_named(machine, options.axis);
-  if (found == nullptr) {
-    std::fprintf(stderr, "no axis '%s' in %s\n", options.axis.c_str(), machine.source.c_str());
-    return 2;
-  }
+  const config::AxisConfig* found = load_axis(options.config, options.axis, machine);
+  if (found == nullptr) return 2;
   config::AxisConfig axis = *found;
   if (!options.calibration.empty()) axis.calibration_file = options.calibration;
   if (options.home_m) {

@@ -144,29 +144,30 @@ std::vector<std::string> write_calibration_plots(const std::string& calibration_
   if (!c.position_m.empty()) {
     std::vector<double> x_mm;
     for (double x : c.position_m) x_mm.push_back(x * 1e3);
+    // A curve binned over the position, its summary as a horizontal line.
+    const auto binned = [&](const std::string& title, const std::string& y_label, int color,
+                            const std::vector<double>& y, double summary, const char* summary_label) {
+      SvgPlot plot;
+      plot.title = title + " - " + id;
+      plot.x_label = "position [mm]";
+      plot.y_label = y_label;
+      plot.series.push_back({"per " + std::to_string(static_cast<int>(std::lround(c.bin_m * 1e3))) + " mm",
+                             svg_color(color), x_mm, y, 1.3, 1.0});
+      plot.hlines.emplace_back(summary, summary_label);
+      return plot;
+    };
     if (c.residual_mv.size() == x_mm.size()) {
-      SvgPlot res;
-      res.title = "Readings about the table during the sweep - " + id;
-      res.x_label = "position [mm]";
-      res.y_label = "RMS reading minus table [mV]";
-      res.series.push_back({"per " + std::to_string(static_cast<int>(std::lround(c.bin_m * 1e3))) + " mm", svg_color(0),
-                            x_mm, c.residual_mv, 1.3, 1.0});
       char label[96];
       std::snprintf(label, sizeof label, "overall %.3f mV", r.table_residual_mv);
-      res.hlines.emplace_back(r.table_residual_mv, label);
-      save("residuals", res);
+      save("residuals", binned("Readings about the table during the sweep", "RMS reading minus table [mV]", 0,
+                               c.residual_mv, r.table_residual_mv, label));
     }
     if (c.forward_backward_um.size() == x_mm.size()) {
-      SvgPlot fb;
-      fb.title = "Forward minus backward pass - " + id;
-      fb.x_label = "position [mm]";
-      fb.y_label = "table shift forward - backward [um]";
-      fb.series.push_back({"per " + std::to_string(static_cast<int>(std::lround(c.bin_m * 1e3))) + " mm", svg_color(1),
-                           x_mm, c.forward_backward_um, 1.3, 1.0});
       char label[128];
       std::snprintf(label, sizeof label, "mean %.3f um = 2 v d: Hall delay %.2f us", r.forward_backward_shift_um,
                     r.hall_delay_s * 1e6);
-      fb.hlines.emplace_back(r.forward_backward_shift_um, label);
+      SvgPlot fb = binned("Forward minus backward pass", "table shift forward - backward [um]", 1,
+                          c.forward_backward_um, r.forward_backward_shift_um, label);
       fb.hlines.emplace_back(0.0, "0");
       save("forward-backward", fb);
     }

@@ -39,7 +39,9 @@ std::set<std::string>& scratch_files() {
   return *s;
 }
 
-const char* kind_of(mode_t mode) {
+}  // namespace
+
+const char* file_kind(mode_t mode) {
   if (S_ISDIR(mode)) return "a directory";
   if (S_ISCHR(mode)) return "a character device";
   if (S_ISBLK(mode)) return "a block device";
@@ -47,8 +49,6 @@ const char* kind_of(mode_t mode) {
   if (S_ISSOCK(mode)) return "a socket";
   return "not a regular file";
 }
-
-}  // namespace
 
 void register_scratch_file(const std::string& path) {
   std::lock_guard<std::mutex> lock(scratch_mutex());
@@ -72,7 +72,7 @@ std::string why_not_writable(const std::string& path) {
   if (path.empty()) return "empty file name";
   struct stat st {};
   if (::stat(path.c_str(), &st) == 0) {
-    if (!S_ISREG(st.st_mode)) return "'" + path + "' is " + kind_of(st.st_mode) + ", not a regular file";
+    if (!S_ISREG(st.st_mode)) return "'" + path + "' is " + file_kind(st.st_mode) + ", not a regular file";
   } else if (errno != ENOENT) {
     return "'" + path + "': " + std::strerror(errno);  // ENOTDIR, EACCES, ELOOP, ENAMETOOLONG
   }
@@ -92,7 +92,7 @@ bool write_text_file_atomic(const std::string& path, const std::string& text, st
   struct stat st {};
   const bool exists = ::stat(path.c_str(), &st) == 0;
   if (exists && !S_ISREG(st.st_mode)) {
-    error = "cannot write '" + path + "': it is " + kind_of(st.st_mode) + ", not a regular file";
+    error = "cannot write '" + path + "': it is " + file_kind(st.st_mode) + ", not a regular file";
     return false;
   }
   // Same directory as the target: rename() is atomic only within one file system.

@@ -3,6 +3,8 @@
 // written and flushed, renamed over the target, then the directory flushed.
 #pragma once
 
+#include <sys/types.h>
+
 #include <cstddef>
 #include <string>
 
@@ -29,5 +31,9 @@ std::size_t remove_scratch_files_for_exit();
 /// file: its directory is missing, not a directory, not writable, or the path
 /// is a directory, a device or a FIFO. Empty when nothing speaks against it.
 std::string why_not_writable(const std::string& path);
+
+/// What a path that is not a regular file is, for messages ("a directory", "a
+/// FIFO", ...), from its stat mode.
+const char* file_kind(mode_t mode);
 
 }  // namespace ve::config

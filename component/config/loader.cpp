@@ -19,6 +19,7 @@
 #include <map>
 #include <sstream>
 
+#include "config/atomic_file.hpp"
 #include "config/embedded.hpp"
 #include "core/sample.hpp"
 #include "config/can_layout_file.hpp"
@@ -723,15 +724,6 @@ Map Document::root() {
 // ---------------------------------------------------------------------------
 
 namespace {
-
-const char* file_kind(mode_t mode) {
-  if (S_ISDIR(mode)) return "a directory";
-  if (S_ISFIFO(mode)) return "a FIFO";
-  if (S_ISCHR(mode)) return "a character device";
-  if (S_ISBLK(mode)) return "a block device";
-  if (S_ISSOCK(mode)) return "a socket";
-  return "not a regular file";
-}
 
 std::string size_text(std::size_t bytes) {
   if (bytes >= (1u << 20) && bytes % (1u << 20) == 0) return std::to_string(bytes >> 20) + " MiB";
