@@ -602,27 +602,20 @@ bool RawLogReader::parse_row(const char* text, std::size_t len) {
           add_error(line, col_of(text, vb), names_[k], num_message(r, vb, ve));
           return false;
         }
+        // A reading and the flag that says the row has it.
+        const auto put = [x](double& value, bool& present) {
+          value = x;
+          present = true;
+        };
         switch (c.role) {
           case Role::hall:
             s.hall_v[static_cast<std::size_t>(c.hall)] = x;
             s.hall_valid_mask |= 1u << c.hall;
             break;
-          case Role::accel:
-            s.accel_mps2 = x;
-            s.accel_valid = true;
-            break;
-          case Role::accel_base:
-            s.accel_base_mps2 = x;
-            s.accel_base_valid = true;
-            break;
-          case Role::temperature:
-            s.temperature_c = x;
-            s.temperature_valid = true;
-            break;
-          case Role::ref:
-            ref = x;
-            has_ref = true;
-            break;
+          case Role::accel: put(s.accel_mps2, s.accel_valid); break;
+          case Role::accel_base: put(s.accel_base_mps2, s.accel_base_valid); break;
+          case Role::temperature: put(s.temperature_c, s.temperature_valid); break;
+          case Role::ref: put(ref, has_ref); break;
           case Role::true_pos: truth[0] = x, ++truth_filled; break;
           case Role::true_vel: truth[1] = x, ++truth_filled; break;
           case Role::true_acc: truth[2] = x, ++truth_filled; break;

@@ -199,61 +199,47 @@ LayoutProblem check_layout(const CanLayout& l) {
   return all.empty() ? LayoutProblem{} : std::move(all.front());
 }
 
+namespace {
+
+/// Walks a signal's bits one byte at a time: f(byte, shift, n, at) for each byte
+/// it touches, the n bits at `shift` (from the byte's LSB) of data[byte] being the
+/// value's bits [at, at + n). Little endian: the value's LSB first, from start_bit
+/// up; big endian (start_bit in the sawtooth numbering): its MSB first, from the
+/// first byte's MSB down and on into the next bytes.
+template <class F>
+void for_each_byte_of(int start_bit, int length, ByteOrder order, F&& f) {
+  const bool little = order == ByteOrder::little_endian;
+  int pos = little ? start_bit : sawtooth_to_linear(start_bit);
+  for (int done = 0; done < length;) {
+    const int off = pos & 7;  // little endian: from the byte's LSB; big endian: from its MSB
+    const int n = std::min(8 - off, length - done);
+    if (little)
+      f(pos >> 3, off, n, done);
+    else
+      f(pos >> 3, 8 - off - n, n, length - done - n);
+    done += n;
+    pos += n;
+  }
+}
+
+}  // namespace
+
 std::uint64_t get_bits(const std::uint8_t* data, int start_bit, int length, ByteOrder order) {
   std::uint64_t raw = 0;
-  int got = 0;
-  if (order == ByteOrder::little_endian) {
-    int pos = start_bit;
-    while (got < length) {
-      const int off = pos & 7;
-      const int n = std::min(8 - off, length - got);
-      const std::uint64_t chunk = (static_cast<std::uint64_t>(data[pos >> 3]) >> off) & ((1u << n) - 1u);
-      raw |= chunk << got;
-      got += n;
-      pos += n;
-    }
-  } else {
-    int lin = sawtooth_to_linear(start_bit);
-    while (got < length) {
-      const int off = lin & 7;  // from the byte's MSB
-      const int n = std::min(8 - off, length - got);
-      const std::uint64_t chunk = (static_cast<std::uint64_t>(data[lin >> 3]) >> (8 - off - n)) & ((1u << n) - 1u);
-      raw = (raw << n) | chunk;
-      got += n;
-      lin += n;
-    }
-  }
+  for_each_byte_of(start_bit, length, order, [&](int byte, int shift, int n, int at) {
+    const std::uint64_t chunk = (static_cast<std::uint64_t>(data[byte]) >> shift) & ((1u << n) - 1u);
+    raw |= chunk << at;
+  });
   return raw;
 }
 
 void set_bits(std::uint8_t* data, int start_bit, int length, ByteOrder order, std::uint64_t raw) {
-  int done = 0;
-  if (order == ByteOrder::little_endian) {
-    int pos = start_bit;
-    while (done < length) {
-      const int off = pos & 7;
-      const int n = std::min(8 - off, length - done);
-      const unsigned mask = ((1u << n) - 1u) << off;
-      const unsigned v = static_cast<unsigned>((raw >> done) & ((1u << n) - 1u)) << off;
-      std::uint8_t& b = data[pos >> 3];
-      b = static_cast<std::uint8_t>((b & ~mask) | v);
-      done += n;
-      pos += n;
-    }
-  } else {
-    int lin = sawtooth_to_linear(start_bit);
-    while (done < length) {
-      const int off = lin & 7;
-      const int n = std::min(8 - off, length - done);
-      const int shift = 8 - off - n;
-      const unsigned mask = ((1u << n) - 1u) << shift;
-      const unsigned v = static_cast<unsigned>((raw >> (length - done - n)) & ((1u << n) - 1u)) << shift;
-      std::uint8_t& b = data[lin >> 3];
-      b = static_cast<std::uint8_t>((b & ~mask) | v);
-      done += n;
-      lin += n;
-    }
-  }
+  for_each_byte_of(start_bit, length, order, [&](int byte, int shift, int n, int at) {
+    const unsigned mask = ((1u << n) - 1u) << shift;
+    const unsigned v = static_cast<unsigned>((raw >> at) & ((1u << n) - 1u)) << shift;
+    std::uint8_t& b = data[byte];
+    b = static_cast<std::uint8_t>((b & ~mask) | v);
+  });
 }
 
 bool matches(const CanLayout& layout, std::uint32_t id, bool extended) {
