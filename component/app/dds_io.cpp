@@ -107,6 +107,16 @@ void delivery(Q& q, fdds::ReliabilityQosPolicyKind reliability, fdds::Durability
   if (depth > 0) q.history().depth = depth;
 }
 
+/// A reader of a topic with one instance per axis keeps every axis of a machine
+/// (transport::kReaderMaxAxes), each with the history depth `depth`.
+void per_axis_limits(fdds::DataReaderQos& q, std::int32_t depth) {
+  auto& r = q.resource_limits();
+  r.max_instances = transport::kReaderMaxAxes;
+  r.max_samples_per_instance = depth;
+  r.max_samples = transport::kReaderMaxAxes * depth;
+  r.allocated_samples = transport::kReaderAllocatedAxes * depth;
+}
+
 /// A periodic stream: its deadline, and liveliness AUTOMATIC (the participant
 /// asserts it) with the lease and announcement period given: a lease of 1 s
 /// offered, 2 s requested (offered <= requested), announcements every 0.5 s
@@ -133,6 +143,7 @@ void state_writer_defaults(fdds::DataWriterQos& q) {
 // for tens of ms without its history overwriting samples it has not taken yet.
 void state_reader_defaults(fdds::DataReaderQos& q) {
   delivery(q, fdds::BEST_EFFORT_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, transport::kStateReaderDepth);
+  per_axis_limits(q, transport::kStateReaderDepth);
   periodic(q, 10.0, 2.0, 1.0);
   q.endpoint().history_memory_policy = eprosima::fastrtps::rtps::PREALLOCATED_MEMORY_MODE;
 }
@@ -148,6 +159,7 @@ void diagnostics_writer_defaults(fdds::DataWriterQos& q) {
 
 void diagnostics_reader_defaults(fdds::DataReaderQos& q) {
   delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, 4);
+  per_axis_limits(q, 4);
   periodic(q, 1000.0, 2.0, 1.0);
 }
 
@@ -158,6 +170,7 @@ void diagnostics_reader_defaults(fdds::DataReaderQos& q) {
 template <class Q>
 void last_per_axis_defaults(Q& q) {
   delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::TRANSIENT_LOCAL_DURABILITY_QOS, 1);
+  if constexpr (std::is_same_v<Q, fdds::DataReaderQos>) per_axis_limits(q, 1);
 }
 
 // Calibration commands: every request counts and none is replayed to a process

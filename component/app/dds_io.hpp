@@ -61,6 +61,11 @@ namespace transport {
 inline constexpr std::uint32_t kUdpReceiveBufferBytes = 4u * 1024u * 1024u;
 /// ve_state_reader's history depth per axis instance (64 ms at 4 kHz).
 inline constexpr std::int32_t kStateReaderDepth = 256;
+/// Axes (instances) one reader keeps, per-axis topics: Fast DDS 2.9's default of 10
+/// would drop the 11th axis of a machine, silently. The history grows as axes appear
+/// (kReaderAllocatedAxes of them reserved at start), up to this many.
+inline constexpr std::int32_t kReaderMaxAxes = 1024;
+inline constexpr std::int32_t kReaderAllocatedAxes = 16;
 }  // namespace transport
 
 struct DdsOptions {
