@@ -33,6 +33,11 @@ bool load_axis_calibration(const config::AxisConfig& axis, core::Calibration& ou
   return true;
 }
 
+std::string axis_error(const std::string& name, const std::string& error) {
+  const std::string prefix = "axis '" + name + "': ";
+  return error.rfind(prefix, 0) == 0 ? error : prefix + error;
+}
+
 std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axis, SourceTiming timing,
                                                    std::string& error) {
   switch (axis.driver.kind) {

@@ -31,6 +31,10 @@ bool load_axis_calibration(const config::AxisConfig& axis, core::Calibration& ou
                            std::string& error);
 
 /// The sensor source the axis config names.
+/// `error` about axis `name`, starting with "axis 'NAME': " once (the drivers' own
+/// messages already name their axis; others do not).
+std::string axis_error(const std::string& name, const std::string& error);
+
 std::unique_ptr<drivers::SensorSource> make_source(const config::AxisConfig& axis, SourceTiming timing,
                                                    std::string& error);
 

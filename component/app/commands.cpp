@@ -420,7 +420,7 @@ int run_command(const RunOptions& options) {
     auto loop = std::make_unique<AxisLoop>();
     std::string error;
     if (!build_axis(axis, SourceTiming::as_configured, loop->setup, error)) {
-      std::fprintf(stderr, "axis '%s': %s\n", axis.name.c_str(), error.c_str());
+      std::fprintf(stderr, "%s\n", axis_error(axis.name, error).c_str());
       return 2;
     }
     use_kept_position(loop->setup);

@@ -69,7 +69,7 @@ int record_command(const RecordOptions& options) {
   std::string error;
   auto source = make_source(*axis, options.fast ? SourceTiming::as_fast_as_possible : SourceTiming::as_configured, error);
   if (!source) {
-    std::fprintf(stderr, "axis '%s': %s\n", axis->name.c_str(), error.c_str());
+    std::fprintf(stderr, "%s\n", axis_error(axis->name, error).c_str());
     return 2;
   }
   // A signal also wakes a read() that sleeps until a far-off sample is due (a paced

@@ -17,6 +17,7 @@
 #include "process.hpp"
 #include "speed.hpp"
 #include "temp_dir.hpp"
+#include "test_domain.hpp"
 
 namespace {
 
@@ -134,3 +135,32 @@ TEST(Check, OneProblemIsOneAndACleanMachineHasNone) {
 }
 
 }  // namespace
+
+// `record` and `run` name the axis of a driver that cannot start once: the driver's
+// message already starts with "axis 'NAME': " (they printed "axis 'y': axis 'y': ...").
+TEST(DriverError, RecordAndRunNameTheAxisOnce) {
+  ScratchDir dir;
+  ASSERT_FALSE(dir.path.empty());
+  const fs::path machine = dir.path / "machine.yaml";
+  write(machine,
+        "machine: no-interface\n"
+        "axes:\n"
+        "  - name: y\n"
+        "    motor: " + source("config/motors/sim-12mm.yaml") + "\n"
+        "    driver:\n"
+        "      type: socketcan\n"
+        "      interface: ve-none0\n"
+        "      layout: " + source("config/can/classic-4hall.yaml") + "\n");
+  const std::vector<std::vector<std::string>> commands = {
+      {VE_BINARY, "record", "--config", machine.string(), "--out", (dir.path / "rec.csv").string(), "--duration", "1"},
+      {VE_BINARY, "run", "--config", machine.string(), "--domain", std::to_string(ve::test::dds_domain()), "--duration",
+       "1"}};
+  for (const auto& argv : commands) {
+    ve::test::ChildProcess p(argv, (dir.path / (argv[1] + ".log")).string());
+    ASSERT_TRUE(p.started());
+    EXPECT_EQ(p.wait_exit(ve::test::patience(60s)), 2) << argv[1] << ":\n" << p.log();
+    const std::string log = p.log();
+    EXPECT_NE(log.find("axis 'y': "), std::string::npos) << argv[1] << ":\n" << log;
+    EXPECT_EQ(log.find("axis 'y': axis 'y'"), std::string::npos) << argv[1] << ":\n" << log;
+  }
+}
