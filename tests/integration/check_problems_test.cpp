@@ -52,6 +52,20 @@ void write_bad_calibration(const fs::path& p) {
   write(p, text);
 }
 
+/// A machine of one axis whose CAN interface does not exist: its driver cannot start,
+/// on any host.
+void write_unstartable_machine(const fs::path& p, const std::string& machine, const std::string& axis) {
+  write(p,
+        "machine: " + machine + "\n"
+        "axes:\n"
+        "  - name: " + axis + "\n"
+        "    motor: " + source("config/motors/sim-12mm.yaml") + "\n"
+        "    driver:\n"
+        "      type: socketcan\n"
+        "      interface: ve-none0\n"
+        "      layout: " + source("config/can/classic-4hall.yaml") + "\n");
+}
+
 struct CheckRun {
   int code = -1;
   std::vector<std::string> lines;
@@ -114,15 +128,7 @@ TEST(Check, OneProblemIsOneAndACleanMachineHasNone) {
   ScratchDir dir;
   ASSERT_FALSE(dir.path.empty());
   const fs::path machine = dir.path / "machine.yaml";
-  write(machine,
-        "machine: one-problem\n"
-        "axes:\n"
-        "  - name: x\n"
-        "    motor: " + source("config/motors/sim-12mm.yaml") + "\n"
-        "    driver:\n"
-        "      type: socketcan\n"
-        "      interface: ve-none0\n"
-        "      layout: " + source("config/can/classic-4hall.yaml") + "\n");
+  write_unstartable_machine(machine, "one-problem", "x");
   CheckRun r = check(machine, dir.path / "check.log");
   EXPECT_EQ(r.code, 1) << r.text;
   EXPECT_EQ(lines_starting(r, machine.string() + ": axis 'x': "), 1u) << r.text;
@@ -134,7 +140,6 @@ TEST(Check, OneProblemIsOneAndACleanMachineHasNone) {
   EXPECT_NE(r.text.find("OK: machine"), std::string::npos) << r.text;
 }
 
-}  // namespace
 
 // `record` and `run` name the axis of a driver that cannot start once: the driver's
 // message already starts with "axis 'NAME': " (they printed "axis 'y': axis 'y': ...").
@@ -142,15 +147,7 @@ TEST(DriverError, RecordAndRunNameTheAxisOnce) {
   ScratchDir dir;
   ASSERT_FALSE(dir.path.empty());
   const fs::path machine = dir.path / "machine.yaml";
-  write(machine,
-        "machine: no-interface\n"
-        "axes:\n"
-        "  - name: y\n"
-        "    motor: " + source("config/motors/sim-12mm.yaml") + "\n"
-        "    driver:\n"
-        "      type: socketcan\n"
-        "      interface: ve-none0\n"
-        "      layout: " + source("config/can/classic-4hall.yaml") + "\n");
+  write_unstartable_machine(machine, "no-interface", "y");
   const std::vector<std::vector<std::string>> commands = {
       {VE_BINARY, "record", "--config", machine.string(), "--out", (dir.path / "rec.csv").string(), "--duration", "1"},
       {VE_BINARY, "run", "--config", machine.string(), "--domain", std::to_string(ve::test::dds_domain()), "--duration",
@@ -164,3 +161,5 @@ TEST(DriverError, RecordAndRunNameTheAxisOnce) {
     EXPECT_EQ(log.find("axis 'y': axis 'y'"), std::string::npos) << argv[1] << ":\n" << log;
   }
 }
+
+}  // namespace
