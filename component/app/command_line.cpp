@@ -104,7 +104,9 @@ std::string env_footer(const std::string& extra) {
 
 const std::string kDdsEnvironment =
     "  FASTRTPS_DEFAULT_PROFILES_FILE  Fast DDS XML profiles loaded before the machine's dds.profiles_file\n"
-    "  VE_DDS_TYPE_INFORMATION=1       announce XTypes TypeInformation (off by default: Cyclone DDS 0.10 rejects it)\n";
+    "  VE_DDS_TYPE_INFORMATION=1       announce XTypes TypeInformation (off by default: Cyclone DDS 0.10 rejects it)\n"
+    "  VE_DDS_TYPE_OBJECT=1            announce TypeObjects for generic tools (off by default: Fast DDS 2.9 receivers\n"
+    "                                  build them on racy receive threads; see docs/dds-interface.md)\n";
 
 /// The one-line hint after an error.
 std::string usage_hint(const CLI::App* sub) {

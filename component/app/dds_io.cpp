@@ -9,6 +9,7 @@
 #include <deque>
 #include <fstream>
 #include <iterator>
+#include <mutex>
 #include <tuple>
 #include <type_traits>
 
@@ -368,10 +369,15 @@ void warn_if_receive_buffer_capped(const fdds::DomainParticipantQos& pq) {
 
 // ---------------------------------------------------------------- DdsContext
 
-bool DdsOptions::type_information_from_env() {
-  const char* v = std::getenv("VE_DDS_TYPE_INFORMATION");
+namespace {
+bool env_flag(const char* name) {
+  const char* v = std::getenv(name);
   return v != nullptr && (std::string(v) == "1" || std::string(v) == "true" || std::string(v) == "yes");
 }
+}  // namespace
+
+bool DdsOptions::type_information_from_env() { return env_flag("VE_DDS_TYPE_INFORMATION"); }
+bool DdsOptions::type_object_from_env() { return env_flag("VE_DDS_TYPE_OBJECT"); }
 
 std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::string& error) {
   route_fastdds_log();  // before the factory, which may already parse a profiles file
@@ -383,8 +389,13 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
     error = "cannot load DDS profiles file '" + options.profiles_file + "'";
     return nullptr;
   }
-  // Type information for generic DDS tools (TypeObject / TypeLookup).
-  registerVirtualEncoderTypes();
+  // Type information for generic DDS tools (TypeObject / TypeLookup), only when asked
+  // for (see DdsOptions::type_object). Registered once per process: the registry's
+  // writes are not safe against a receive thread reading it.
+  if (options.type_object || options.type_information) {
+    static std::once_flag registered;
+    std::call_once(registered, [] { registerVirtualEncoderTypes(); });
+  }
 
   std::unique_ptr<DdsContext> ctx(new DdsContext());
   fdds::DomainParticipantQos pq;
@@ -423,11 +434,12 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
   fdds::TypeSupport diagnostics_type(new ve::dds::DiagnosticsPubSubType());
   fdds::TypeSupport command_type(new ve::dds::CalibrationCommandPubSubType());
   fdds::TypeSupport cal_status_type(new ve::dds::CalibrationStatusPubSubType());
-  // TypeObject in discovery (PID_TYPE_OBJECT): generic Fast DDS tools can build
-  // the types. XTypes 1.3 TypeInformation (PID 0x75) only on request: Cyclone DDS
-  // 0.10 rejects Fast DDS 2.9's encoding of it and then ignores the endpoint.
+  // TypeObject in discovery (PID_TYPE_OBJECT) only on request: a Fast DDS 2.9 receiver
+  // builds a DynamicType from it on its receive threads, which is not thread-safe (see
+  // DdsOptions::type_object). XTypes 1.3 TypeInformation (PID 0x75) only on request too:
+  // Cyclone DDS 0.10 rejects Fast DDS 2.9's encoding of it and then ignores the endpoint.
   for (auto* t : {&state_type, &description_type, &diagnostics_type, &command_type, &cal_status_type}) {
-    (*t)->auto_fill_type_object(true);
+    (*t)->auto_fill_type_object(options.type_object);
     (*t)->auto_fill_type_information(options.type_information);
     if (t->register_type(ctx->participant_) != ReturnCode_t::RETCODE_OK) {
       error = "cannot register the DDS type " + t->get_type_name();

@@ -83,6 +83,16 @@ struct DdsOptions {
   /// endpoints. Default from the environment: VE_DDS_TYPE_INFORMATION=1 turns it on.
   bool type_information = type_information_from_env();
   static bool type_information_from_env();
+  /// Announce the types' complete TypeObjects in discovery (for generic tools that
+  /// build a type from it). Off by default: every Fast DDS 2.9 participant that
+  /// discovers an endpoint carrying one builds a DynamicType from it on its receive
+  /// threads, in a type registry that is not thread-safe (add_type_identifier writes
+  /// its maps without the lock others read them under). Two endpoints discovered at
+  /// once then crash the receiver, ours or a drive controller's (seen: a SEGV in
+  /// TypeObjectFactory::get_key_from_hash under AddressSanitizer). Default from the
+  /// environment: VE_DDS_TYPE_OBJECT=1 turns it on.
+  bool type_object = type_object_from_env();
+  static bool type_object_from_env();
   /// Built-in QoS only (no participant profile): Fast DDS's default transports
   /// (shared memory and UDPv4) instead of the product's UDPv4 only. Off by
   /// default: the product never uses shared memory (crash isolation, see
