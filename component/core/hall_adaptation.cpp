@@ -26,8 +26,10 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   reopen_offset_var_ = f.hall_offset_reopen_std_v * f.hall_offset_reopen_std_v;
   p0_gg_ = f.hall_gain_initial_std * f.hall_gain_initial_std;
   p0_dd_ = f.hall_offset_initial_std_v * f.hall_offset_initial_std_v;
-  p_gg_.fill(p0_gg_);
-  p_dd_.fill(p0_dd_);
+  for (int i = 0; i < sensors_; ++i) {
+    pgg(i) = p0_gg_;
+    pdd(i) = p0_dd_;
+  }
   q_common_ = f.hall_common_gain_random_walk_per_sqrt_s * f.hall_common_gain_random_walk_per_sqrt_s * ts_s;
   p0_common_ = f.hall_common_gain_initial_std * f.hall_common_gain_initial_std;
   p_common_ = p0_common_;
@@ -39,16 +41,19 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   offset_tc_std_v_ = f.hall_offset_tc_std_v_per_k;
   temperature_alpha_ = 1.0 - std::exp(-ts_s / kTemperatureAverageS);
   infer_decay_ = std::exp(-ts_s / kInferAverageS);
-  infer_settle_samples_ = static_cast<std::uint64_t>(std::ceil(kInferAverageS / ts_s));
+  infer_first_samples_ = static_cast<std::uint64_t>(std::ceil(kInferFirstS / ts_s));
 }
 
 void HallAdaptation::widen_for_rise(double d_k) {
   const double limit2 = gain_limit_ * gain_limit_;
   const double d2 = d_k * d_k;
+  // Once the motor is a kelvin or more from its calibration, the sensors' drift
+  // outgrows the prior and is learnt jointly (see joint_update).
+  widened_k2_ += d2;
+  if (widened_k2_ >= kJointFromK * kJointFromK) joint_ = true;
   for (int i = 0; i < sensors_; ++i) {
-    const auto k = static_cast<std::size_t>(i);
-    p_gg_[k] = std::min(p_gg_[k] + gain_tc_std_ * gain_tc_std_ * d2, limit2);
-    p_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d2;
+    pgg(i) = std::min(pgg(i) + gain_tc_std_ * gain_tc_std_ * d2, limit2);
+    pdd(i) += offset_tc_std_v_ * offset_tc_std_v_ * d2;
   }
 }
 
@@ -60,7 +65,7 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   const double w = 1.0 / (variance + model_var_common_);
   infer_wg_ = infer_decay_ * infer_wg_ + w * g;
   infer_w_ = infer_decay_ * infer_w_ + w;
-  if (++infer_samples_ < infer_settle_samples_) return;
+  if (++infer_samples_ < infer_first_samples_) return;
   // The coefficients are known to tc_rel_std: the rise they imply, as far as it may be.
   const double rise_k = infer_wg_ / infer_w_ / common_tc_per_k_ * std::sqrt(1.0 + tc_rel_std_ * tc_rel_std_);
   if (!inferred_started_) {
@@ -126,6 +131,37 @@ void HallAdaptation::temperature(double delta_k) {
   widen_for_rise(d);
 }
 
+double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,
+                                         const std::array<double, kMaxHalls>& table_v, std::uint32_t mask,
+                                         double& beyond_prior) const {
+  beyond_prior = 0.0;
+  if (!enabled_) return 0.0;
+  double total = 0.0, prior = 0.0, own_beyond = 0.0;
+  for (int i = 0; i < sensors_; ++i) {
+    if (!(mask >> i & 1u)) continue;
+    const auto k = static_cast<std::size_t>(i);
+    const double ui = table_v[k] - mid_v_;
+    const double own_prior = ui * ui * p0_gg_ + p0_dd_;
+    prior += c[k] * c[k] * own_prior;
+    own_beyond += c[k] * c[k] * std::max(0.0, reading_variance(i, table_v[k]) - own_prior);
+    if (!joint_) {
+      total += c[k] * c[k] * reading_variance(i, table_v[k]);
+      continue;
+    }
+    for (int j = 0; j < sensors_; ++j) {
+      if (!(mask >> j & 1u)) continue;
+      const auto l = static_cast<std::size_t>(j);
+      const double uj = table_v[l] - mid_v_;
+      const int a = 2 * i, b = 2 * j;
+      total += c[k] * c[l] * (ui * uj * p_[a][b] + ui * p_[a][b + 1] + uj * p_[a + 1][b] + p_[a + 1][b + 1]);
+    }
+  }
+  // Sensor by sensor (no correlations) what each holds beyond its prior; jointly,
+  // what the combination holds beyond the prior's share.
+  beyond_prior = joint_ ? std::max(0.0, total - prior) : own_beyond;
+  return std::max(0.0, total);
+}
+
 void HallAdaptation::correct(const RawSample& in, double common_mode_v, RawSample& out) const {
   out = in;
   if (!enabled_) return;
@@ -157,11 +193,10 @@ void HallAdaptation::update(const RawSample& raw, const HallTable& table, double
   share = std::clamp(share, 1e-9, 1.0);
   p_common_ = std::min(p_common_ + q_common_, p0_common_);
   for (int i = 0; i < sensors_; ++i) {
-    const auto k = static_cast<std::size_t>(i);
     // Random walk: the parameters may have moved since the last sample; unseen for
     // long (at standstill), no more unsure than at start-up.
-    if (p_gg_[k] < p0_gg_) p_gg_[k] = std::min(p_gg_[k] + q_gain_, p0_gg_);
-    if (p_dd_[k] < p0_dd_) p_dd_[k] = std::min(p_dd_[k] + q_offset_, p0_dd_);
+    if (pgg(i) < p0_gg_) pgg(i) = std::min(pgg(i) + q_gain_, p0_gg_);
+    if (pdd(i) < p0_dd_) pdd(i) = std::min(pdd(i) + q_offset_, p0_dd_);
   }
   // Residuals of every usable sensor at the predicted position; when the sensors
   // together place the carriage away from it (the drift not learnt yet, or the
@@ -208,12 +243,15 @@ void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, dou
 void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
                            const std::array<double, kMaxHalls>& sl, std::uint32_t usable, double s_sr, double s_ss,
                            std::uint32_t learn_only_mask, double share) {
+  // First each sensor on its own: what a position error explains is the
+  // position's business, not the sensor's, so the shift the other sensors see is
+  // taken out (leave-one-out, so the sensor's own noise and drift are not in it),
+  // and a residual that keeps one sign (a change faster than the random walk)
+  // re-opens the sensor's covariance. One sensor alone teaches nothing.
+  std::uint32_t learn_mask = 0;
   for (int i = 0; i < sensors_; ++i) {
     if (!(usable >> i & 1u)) continue;
     const auto k = static_cast<std::size_t>(i);
-    // What a position error explains is the position's business, not the
-    // sensor's: take out the shift the other sensors see (leave-one-out, so the
-    // sensor's own noise and drift are not in it). One sensor alone teaches nothing.
     const bool own = !(learn_only_mask >> i & 1u);
     const double others_ss = own ? s_ss - sl[k] * sl[k] : s_ss;
     if (!(others_ss > 1e-12 * (s_ss + 1e-300))) continue;
@@ -222,31 +260,124 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
     if (std::abs(shift_m) > max_shift_m_) continue;
     const double res = r[k] - sl[k] * shift_m;
     const double rv = noise_var_v2_ * (1.0 + sl[k] * sl[k] / others_ss) + model_var_v2_;
-    // Innovation variance with H = [u, 1].
-    const double ph_g = p_gg_[k] * u[k] + p_gd_[k];
-    const double ph_d = p_gd_[k] * u[k] + p_dd_[k];
-    const double s_cusum = u[k] * ph_g + ph_d + rv;
-    // The update itself takes the sample as worth `share` of a new one.
-    const double s = s_cusum + rv * (1.0 / share - 1.0);
-    // A change faster than the random walk: the residual keeps one sign. Re-open.
+    const double s_cusum = u[k] * u[k] * pgg(i) + 2.0 * u[k] * pgd(i) + pdd(i) + rv;
     Cusum& c = cusum_[k];
     const double z = res / std::sqrt(s_cusum);
     c.up = std::max(0.0, c.up + z - 1.0);
     c.down = std::max(0.0, c.down - z - 1.0);
     if (reopen_threshold_ > 0.0 && (c.up > reopen_threshold_ || c.down > reopen_threshold_)) {
-      p_gg_[k] += reopen_gain_var_;
-      p_dd_[k] += reopen_offset_var_;
+      pgg(i) += reopen_gain_var_;
+      pdd(i) += reopen_offset_var_;
       c = Cusum{};
       ++reopenings_;
       continue;  // the next sample learns with the wider covariance
     }
+    learn_mask |= 1u << i;
+    if (joint_) continue;
+    // Close to the calibration, sensor by sensor: the drift is within the prior,
+    // and what one sensor learns against the others' is not worth the joint cost.
+    const double ph_g = pgg(i) * u[k] + pgd(i);
+    const double ph_d = pgd(i) * u[k] + pdd(i);
+    // The update itself takes the sample as worth `share` of a new one.
+    const double s = s_cusum + rv * (1.0 / share - 1.0);
     const double kg = ph_g / s, kd = ph_d / s;
     const double g = gamma_[k] + kg * res;
     const double d = delta_[k] + kd * res;
-    p_gg_[k] = std::max(p_gg_[k] - kg * ph_g, 1e-14);
-    p_dd_[k] = std::max(p_dd_[k] - kd * ph_d, 1e-14);
-    const double bound = std::sqrt(p_gg_[k] * p_dd_[k]);
-    p_gd_[k] = std::clamp(p_gd_[k] - kg * ph_d, -bound, bound);
+    pgg(i) = std::max(pgg(i) - kg * ph_g, 1e-14);
+    pdd(i) = std::max(pdd(i) - kd * ph_d, 1e-14);
+    const double bound = std::sqrt(pgg(i) * pdd(i));
+    pgd(i) = std::clamp(pgd(i) - kg * ph_d, -bound, bound);
+    p_[2 * i + 1][2 * i] = pgd(i);
+    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
+    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
+    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
+  }
+  if (!joint_) return;
+  // Then all of them together, on every kJointEvery-th such sample.
+  joint_share_ += share;
+  if (++joint_count_ < kJointEvery) return;
+  const double joint_share = joint_share_;  // the samples in between, each worth its share
+  joint_count_ = 0;
+  joint_share_ = 0.0;
+  // Samples taken where the last ones were repeat one another's errors: however
+  // small each one's share, thousands of them at standstill would push the
+  // parameters along what the array cannot see. Left out; the random walk goes on.
+  if (joint_share < kJointLeastShare) return;
+  joint_update(r, u, sl, learn_mask, learn_only_mask, joint_share);
+}
+
+void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
+                                  const std::array<double, kMaxHalls>& sl, std::uint32_t learn_mask,
+                                  std::uint32_t learn_only_mask, double share) {
+  // The readings' model: r_i = u_i gamma_i + delta_i + slope_i e + noise, e the
+  // position error of the prediction, unknown (a wide prior, uncorrelated with the
+  // parameters) and left out afterwards. Sequential scalar updates of the joint
+  // state (deviations from the current parameters, in x). The sample counts as
+  // `share` of a new one: its noise is taken 1 / share as large.
+  const int n = 2 * sensors_;
+  const int e = kShift;
+  double x[kJoint] = {};
+  for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
+  p_[e][e] = max_shift_m_ * max_shift_m_;
+  int idx[kJoint];
+  int m = 0;
+  for (int j = 0; j < n; ++j) idx[m++] = j;
+  idx[m++] = e;
+  double ph[kJoint];
+  auto scalar_update = [&](int i, double rv, bool whole) {
+    const auto k = static_cast<std::size_t>(i);
+    const int a = 2 * i, b = 2 * i + 1;
+    for (int t = 0; t < m; ++t) {
+      const int j = idx[t];
+      ph[j] = p_[j][a] * u[k] + p_[j][b] + p_[j][e] * sl[k];
+    }
+    const double s = u[k] * ph[a] + ph[b] + sl[k] * ph[e] + rv / share;
+    if (!(s > 0.0)) return;
+    const double nu = r[k] - (u[k] * x[a] + x[b] + sl[k] * x[e]);
+    if (whole) {
+      for (int t = 0; t < m; ++t) x[idx[t]] += ph[idx[t]] / s * nu;
+      for (int t = 0; t < m; ++t) {
+        const int j = idx[t];
+        const double kj = ph[j] / s;
+        for (int v = t; v < m; ++v) {
+          const int l = idx[v];
+          p_[j][l] -= kj * ph[l];
+          p_[l][j] = p_[j][l];
+        }
+      }
+    } else {
+      // A sensor judged faulty learns from the others but tells them nothing: only
+      // its own parameters move, against the position error the others found.
+      const double ka = ph[a] / s, kb = ph[b] / s;
+      x[a] += ka * nu;
+      x[b] += kb * nu;
+      const double paa = p_[a][a] - ka * ph[a], pab = p_[a][b] - ka * ph[b], pbb = p_[b][b] - kb * ph[b];
+      p_[a][a] = paa;
+      p_[a][b] = p_[b][a] = pab;
+      p_[b][b] = pbb;
+    }
+  };
+  for (int pass = 0; pass < 2; ++pass) {
+    for (int i = 0; i < sensors_; ++i) {
+      if (!(learn_mask >> i & 1u)) continue;
+      const bool healthy = !(learn_only_mask >> i & 1u);
+      if (healthy != (pass == 0)) continue;
+      scalar_update(i, noise_var_v2_ + model_var_v2_, healthy);
+    }
+  }
+  for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
+  p_[e][e] = 0.0;
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    pgg(i) = std::max(pgg(i), 1e-14);
+    pdd(i) = std::max(pdd(i), 1e-14);
+    const double bound = std::sqrt(pgg(i) * pdd(i));
+    pgd(i) = std::clamp(pgd(i), -bound, bound);
+    p_[2 * i + 1][2 * i] = pgd(i);
+    // Every sensor's parameters move with what was learnt, through their correlations
+    // with the sensors that took part.
+    const double g = gamma_[k] + x[2 * i];
+    const double d = delta_[k] + x[2 * i + 1];
     at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
     gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
     delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);

@@ -20,7 +20,15 @@
 // walks) on the residual of its reading against the table at the filter's
 // predicted position; the regressor T_i(x) - m_i changes sign over every magnet
 // period, so gain and offset separate as the carriage moves (at standstill they
-// are taken up together, which is what matters there). A CUSUM of each sensor's
+// are taken up together, which is what matters there). Sensor by sensor, each
+// learns against the others' drift not learnt yet (taken out as a shift of the
+// position), which is harmless while the drift stays within the calibration's
+// prior; once the motor is found a kelvin or more from its calibration
+// temperature, every sensor's gain and offset are learnt together in one
+// covariance, with the sample's position error as a nuisance (joint_update): what
+// the array cannot tell from a shift is then held as a correlation between the
+// sensors, and the fix's variance (HallArray::solve) takes it with its
+// correlations instead of sensor by sensor. A CUSUM of each sensor's
 // normalised residual catches a change faster than the random walk allows and
 // re-opens that sensor's covariance, so the parameters follow within a few tens of
 // samples. Gains and offsets are bounded: a sensor that needs more than
@@ -93,13 +101,18 @@ class HallAdaptation {
                   double& std_v) const;
 
   bool enabled() const { return enabled_; }
+  /// Whether the estimator knows how far the motor's temperature is from the
+  /// calibration's: reported by the node, or read from the fixes' common gain
+  /// (observe_fix_gain, after its first average). Until then the sensors' gains and
+  /// offsets may have moved by any amount a temperature change explains, which the
+  /// published sigma cannot know yet.
+  bool temperature_checked() const { return !enabled_ || temperature_known_ || inferred_started_; }
   /// Variance the adapted gain and offset leave in sensor i's corrected reading
   /// where its table reads `table_v` [V^2]; 0 when adaptation is off.
   double reading_variance(int i, double table_v) const {
     if (!enabled_) return 0.0;
-    const auto k = static_cast<std::size_t>(i);
     const double u = table_v - mid_v_;
-    return std::max(0.0, u * u * p_gg_[k] + 2.0 * u * p_gd_[k] + p_dd_[k]);
+    return std::max(0.0, u * u * pgg(i) + 2.0 * u * pgd(i) + pdd(i));
   }
   /// What reading_variance() holds beyond the start-up prior (which stands for the
   /// small drift any calibration has had since, already in the published sigma's
@@ -110,6 +123,17 @@ class HallAdaptation {
     const double u = table_v - mid_v_;
     return std::max(0.0, reading_variance(i, table_v) - (u * u * p0_gg_ + p0_dd_));
   }
+  /// What the adapted gains and offsets leave in a combination sum_i c_i y_i of the
+  /// corrected readings of the sensors in `mask` (sensor i's table reading
+  /// `table_v[i]`): the sensors' joint uncertainty, their correlations included (what
+  /// the array cannot tell from a position shift is correlated between them)
+  /// [V^2 times c^2]. `beyond_prior` is set to what it holds beyond the start-up
+  /// prior (the calibration's small drift, taken as independent between sensors).
+  double combined_variance(const std::array<double, kMaxHalls>& c, const std::array<double, kMaxHalls>& table_v,
+                           std::uint32_t mask, double& beyond_prior) const;
+  /// Whether the sensors' gains and offsets are learnt jointly (the motor was found
+  /// a kelvin or more from its calibration temperature) or sensor by sensor.
+  bool joint() const { return joint_; }
   /// Sensor i's own gain change (on top of the common one), and its total change.
   double gain(int i) const { return gamma_[static_cast<std::size_t>(i)]; }
   double total_gain(int i) const { return (1.0 + common_gain_) * (1.0 + gain(i)) - 1.0; }
@@ -154,11 +178,12 @@ class HallAdaptation {
   bool temperature_known_ = false;
   void widen_for_rise(double d_k);  ///< each sensor's gain and offset may have moved by d_k's worth
   // The rise the fixes' common gain shows (observe_fix_gain): its weighted average
-  // over about kInferAverageS, taken in once kInferAverageS has passed.
-  static constexpr double kInferAverageS = 0.2;
+  // over about kInferAverageS, first taken in after kInferFirstS.
+  static constexpr double kInferAverageS = 0.05;
+  static constexpr double kInferFirstS = 0.02;  ///< the first reading: a shorter average
   double infer_decay_ = 0.0;
   double infer_wg_ = 0.0, infer_w_ = 0.0;
-  std::uint64_t infer_samples_ = 0, infer_settle_samples_ = 0;
+  std::uint64_t infer_samples_ = 0, infer_first_samples_ = 0;
   bool inferred_started_ = false;
   double inferred_k_ = 0.0;           ///< the rise last applied, as large as the coefficients allow [K]
   double common_gain_ = 0.0, p_common_ = 0.0;
@@ -169,7 +194,33 @@ class HallAdaptation {
   double rail_guard_v_;  ///< table values this close to a rail are not learnt from  ///< larger prediction errors teach nothing (not linear)
   double reopen_gain_var_, reopen_offset_var_;
   std::array<double, kMaxHalls> gamma_{}, delta_{};
-  std::array<double, kMaxHalls> p_gg_{}, p_gd_{}, p_dd_{};
+  // Every sensor's gain and offset are learnt together: what one sample cannot tell
+  // apart (a shift of the position against the sensors' common pattern of drift) is
+  // held as a correlation, not forgotten. The joint covariance of (gamma_i, delta_i)
+  // for all sensors, gamma_i at 2i and delta_i at 2i + 1; the last row and column
+  // are the position error of the sample being learnt from (a nuisance, re-opened
+  // for every sample).
+  static constexpr int kJoint = 2 * kMaxHalls + 1;
+  static constexpr int kShift = 2 * kMaxHalls;
+  double p_[kJoint][kJoint] = {};
+  double& pgg(int i) { return p_[2 * i][2 * i]; }
+  double& pgd(int i) { return p_[2 * i][2 * i + 1]; }
+  double& pdd(int i) { return p_[2 * i + 1][2 * i + 1]; }
+  double pgg(int i) const { return p_[2 * i][2 * i]; }
+  double pgd(int i) const { return p_[2 * i][2 * i + 1]; }
+  double pdd(int i) const { return p_[2 * i + 1][2 * i + 1]; }
+  /// The joint update runs on every kJointEvery-th sample that learns (its cost
+  /// grows with the square of the sensors); the samples between add their share.
+  static constexpr int kJointEvery = 8;
+  static constexpr double kJointLeastShare = 1e-3;  ///< the least share a joint update takes
+  static constexpr double kJointFromK = 1.0;        ///< joint learning from this far off calibration [K]
+  bool joint_ = false;
+  double widened_k2_ = 0.0;  ///< sum of the squared rises widened for [K^2]
+  int joint_count_ = 0;
+  double joint_share_ = 0.0;
+  void joint_update(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
+                    const std::array<double, kMaxHalls>& sl, std::uint32_t learn_mask, std::uint32_t learn_only_mask,
+                    double share);
   std::array<Cusum, kMaxHalls> cusum_{};
   std::array<bool, kMaxHalls> at_limit_{};
   std::uint64_t reopenings_ = 0;

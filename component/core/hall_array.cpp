@@ -103,7 +103,10 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   int used = 0;
   double hxx = 0.0, hxe = 0.0, hee = info_c;
   double qxx = 0.0, qxe = 0.0, qee = 0.0;  // the same sums with w^2: the quantisation's share
-  double axx = 0.0, axe = 0.0, aee = 0.0;  // ... and with w^2 times the adaptation's variance
+  // Each used sensor's weighted slope and regressor, and its table reading: the
+  // position's sensitivity to its reading, for the adaptation's joint uncertainty.
+  std::array<double, kMaxHalls> wjx{}, wu{}, tv{};
+  std::uint32_t used_mask = 0;
   for (int i = 0; i < sensors_; ++i) {
     if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
     double t, slope;
@@ -120,12 +123,11 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
       qxx += w * w * jx * jx;
       qxe += w * w * jx * u;
       qee += w * w * u * u;
-      if (adaptation) {
-        const double a = adaptation->drift_variance(i, t);
-        axx += a * w * w * jx * jx;
-        axe += a * w * w * jx * u;
-        aee += a * w * w * u * u;
-      }
+      const auto k = static_cast<std::size_t>(i);
+      wjx[k] = w * jx;
+      wu[k] = w * u;
+      tv[k] = t;
+      used_mask |= 1u << i;
       ++used;
     } else if (std::abs(r) > 0.25) {
       fix.conflict_mask |= 1u << i;  // inconsistent with a saturated sensor
@@ -139,15 +141,38 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // row of the normal equations' inverse times w_i (jx_i, u_i).
   double var_x = 1.0 / hxx;
   double gain_sq = qxx / (hxx * hxx);
-  double drift = axx / (hxx * hxx);
+  std::array<double, kMaxHalls> c{};  // the position's sensitivity to each reading
+  for (int i = 0; i < sensors_; ++i) c[static_cast<std::size_t>(i)] = wjx[static_cast<std::size_t>(i)] / hxx;
   if (with_gain) {
     const double det = hxx * hee - hxe * hxe;
     if (!(det > 0.0)) return fix;
     var_x = hee / det;
     gain_sq = (hee * hee * qxx - 2.0 * hee * hxe * qxe + hxe * hxe * qee) / (det * det);
-    drift = (hee * hee * axx - 2.0 * hee * hxe * axe + hxe * hxe * aee) / (det * det);
+    for (int i = 0; i < sensors_; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      c[k] = (hee * wjx[k] - hxe * wu[k]) / det;
+    }
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
+  }
+  double drift = 0.0;
+  if (adaptation) {
+    // Weighted by each sensor's own uncertainty, but the fix's error is what the
+    // sensors' joint uncertainty leaves in this combination of them: the drift learnt
+    // so far is correlated between the sensors (the part the array cannot tell from a
+    // shift is held in common).
+    double noise = 0.0;
+    for (int i = 0; i < sensors_; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      if (used_mask >> i & 1u) noise += c[k] * c[k] * noise_var;
+    }
+    if (with_gain) {
+      const double det = hxx * hee - hxe * hxe;
+      const double ce = hxe / det;  // the position's sensitivity to the common gain's prior
+      noise += ce * ce * info_c;
+    }
+    const double joint = adaptation->combined_variance(c, tv, used_mask, drift);
+    var_x = noise + joint;
   }
   fix.quantisation_m2 = quantisation_v2_ * gain_sq;
   fix.drift_m2 = std::max(0.0, drift);

@@ -468,7 +468,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   const auto& fc = cfg_.motor.filter;
   if (initialised_ && fc.valid_confidence_sigma * out_.position_std_m < fc.valid_position_accuracy_m &&
       fc.valid_confidence_sigma * out_.velocity_std_mps < fc.valid_velocity_accuracy_mps &&
-      without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_)
+      without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_ &&
+      adapt_.temperature_checked())
     status |= status::kValid;
   out_.status = status;
   return out_;
