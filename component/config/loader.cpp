@@ -1490,7 +1490,8 @@ class MachineLoader {
                   {"hall_stuck_mid", K::hall_stuck_mid}, {"hall_noisy", K::hall_noisy},
                   {"hall_intermittent", K::hall_intermittent}, {"hall_spikes", K::hall_spikes},
                   {"accel_dead", K::accel_dead}, {"accel_saturated", K::accel_saturated},
-                  {"accel_bias", K::accel_bias}, {"accel_missing", K::accel_missing}});
+                  {"accel_bias", K::accel_bias}, {"accel_missing", K::accel_missing},
+                  {"no_samples", K::no_samples}});
       if (!f.has("kind")) f.required("kind");
       const bool hall_kind = fc.kind == K::hall_stuck_high || fc.kind == K::hall_stuck_low ||
                              fc.kind == K::hall_stuck_mid || fc.kind == K::hall_noisy ||
@@ -1513,6 +1514,7 @@ class MachineLoader {
         case K::hall_intermittent: f.get("magnitude", fc.magnitude, range(0.0, 1.0, "(probability)")); break;
         case K::hall_spikes: f.get("magnitude", fc.magnitude, range(-100.0, 100.0, "V")); break;
         case K::accel_bias: f.get("magnitude", fc.magnitude, range(-1e4, 1e4, "m/s^2")); break;
+        case K::no_samples: f.reject("magnitude", "not used with kind no_samples (the node sends nothing)"); break;
         default: f.get("magnitude", fc.magnitude, range(-1e4, 1e4, "")); break;
       }
       if (start_ok && end_ok && fc.end_s <= fc.start_s)

@@ -962,6 +962,34 @@ TEST(ConfigLoader, FaultOnASensorTheMotorDoesNotHaveIsRefused) {
   expect_error(r, path, 9, 59, "axes[0].driver.faults[3].magnitude", "2 out of range [0, 1] (probability)");
 }
 
+TEST(ConfigLoader, SilentNodeFaultIsAWindowWithoutSensorOrMagnitude) {
+  TempDir dir;
+  dir.write("m.yaml", kMotor);
+  const std::string head = "axes:\n"              // 1
+                           "  - name: x\n"        // 2
+                           "    motor: m.yaml\n"  // 3
+                           "    driver:\n"        // 4
+                           "      faults:\n";     // 5
+  const auto good = dir.write("good.yaml", head + "        - {kind: no_samples, start_s: 1.5, end_s: 2.5}\n");  // 6
+  const LoadResult ok = load_machine_file(good);
+  ASSERT_TRUE(ok.errors.empty()) << to_string(ok.errors);
+  const auto& sim = ok.config.axes.at(0).driver.sim;
+  ASSERT_EQ(sim.fault_count, 1);
+  EXPECT_EQ(sim.faults[0].kind, sim::FaultConfig::Kind::no_samples);
+  EXPECT_DOUBLE_EQ(sim.faults[0].start_s, 1.5);
+  EXPECT_DOUBLE_EQ(sim.faults[0].end_s, 2.5);
+
+  const auto path = dir.write("machine.yaml",
+                              head + "        - {kind: no_samples, start_s: 1, end_s: 2, magnitude: 1}\n"  // 6
+                                     "        - {kind: no_samples, sensor: 2, start_s: 1}\n"              // 7
+                                     "        - {kind: no_samples, start_s: 2, end_s: 1.5}\n");           // 8
+  const LoadResult r = load_machine_file(path);
+  ASSERT_EQ(r.errors.size(), 3u) << to_string(r.errors);
+  expect_error(r, path, 6, 52, "axes[0].driver.faults[0].magnitude", "not used with kind no_samples");
+  expect_error(r, path, 7, 38, "axes[0].driver.faults[1].sensor", "only used with the hall_* fault kinds");
+  expect_error(r, path, 8, 49, "axes[0].driver.faults[2].end_s", "end_s (1.5) must be after start_s (2)");
+}
+
 TEST(ConfigLoader, ASecondYamlDocumentIsAnError) {
   TempDir dir;
   dir.write("m.yaml", kMotor);
@@ -1032,7 +1060,8 @@ TEST(ConfigLoader, ShippedFilesPassTheRangeChecks) {
     const LoadResult r = load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/" + m);
     EXPECT_TRUE(r.ok()) << m << ":\n" << to_string(r.errors);
   }
-  for (const char* m : {"constant_velocity.yaml", "standstill.yaml", "statistics.yaml", "three_axes.yaml"}) {
+  for (const char* m : {"constant_velocity.yaml", "standstill.yaml", "statistics.yaml", "three_axes.yaml",
+                        "three_axes_y_silent.yaml", "silent_node.yaml"}) {
     const LoadResult r = load_machine_file(std::string(VE_SOURCE_DIR) + "/tests/integration/data/" + m);
     EXPECT_TRUE(r.ok()) << m << ":\n" << to_string(r.errors);
   }
