@@ -208,7 +208,8 @@ void fill_diagnostics(const AxisLoop& loop, const DiagnosticsAccumulator& acc, c
 }
 
 /// A source silent this long (its reads time out) is said in the log, once; and again
-/// when it sends again.
+/// when it sends again, as is a jump of this long in the samples' own times (a silence
+/// the loop did not wait through, being behind).
 constexpr std::int64_t kSilenceLoggedNs = 100000000;
 
 void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnostics, const std::atomic<bool>& stopping) {
@@ -230,6 +231,7 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
   int until_publish = 1;  // the first estimate is published
   std::uint32_t last_status = 0;
   bool silent = false;  // said in the log: the source has sent nothing for kSilenceLoggedNs
+  std::int64_t last_sample_t_ns = 0;
   for (;;) {
     const auto st = source.read(sample);
     if (st == drivers::ReadStatus::timeout) {
@@ -247,11 +249,14 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
     }
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
-    if (silent) {
+    const std::int64_t sample_gap_ns = last_arrival_ns != 0 ? sample.t_ns - last_sample_t_ns : 0;
+    if (silent || sample_gap_ns >= kSilenceLoggedNs) {
       silent = false;
+      const std::int64_t waited_ns = arrival_ns - (last_arrival_ns != 0 ? last_arrival_ns : start_ns);
       spdlog::info("axis '{}': samples again after {:.3f} s without any", loop.setup.config.name,
-                   static_cast<double>(arrival_ns - (last_arrival_ns != 0 ? last_arrival_ns : start_ns)) * 1e-9);
+                   static_cast<double>(std::max(waited_ns, sample_gap_ns)) * 1e-9);
     }
+    last_sample_t_ns = sample.t_ns;
     const core::EncoderEstimate& est = pipeline.step(sample);
     if ((est.status ^ last_status) & core::status::kHomed) {
       // Rare (start-up, a long gap): worth a line in the log.
