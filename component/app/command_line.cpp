@@ -222,8 +222,7 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
   app.set_version_flag("--version", std::string(VE_VERSION));
   app.require_subcommand(1);
   add_log_level(&app, cl.log_level);
-  app.footer(env_footer(kDdsEnvironment + "  NOTIFY_SOCKET, WATCHDOG_USEC      systemd readiness and watchdog (run)\n"
-                                          "  VE_TEST_STALL_AXIS              test hook (run --stall-axis)\n"));
+  app.footer(env_footer(kDdsEnvironment + "  NOTIFY_SOCKET, WATCHDOG_USEC      systemd readiness and watchdog (run)\n"));
 
   // ---- run
   RunOptions& run = cl.run;
@@ -242,21 +241,8 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
       ->check(number(0.01, 86400, "s"))
       ->type_name("SECONDS")
       ->capture_default_str();
-  run_cmd->add_option("--stall-axis", run.stall_axis,
-                      "Test/diagnostic: stall this axis' loop once (also VE_TEST_STALL_AXIS=NAME:AFTER_S:FOR_S)")
-      ->group("Test/diagnostic")
-      ->type_name("AXIS");
-  run_cmd->add_option("--stall-after-s", run.stall_after_s, "Test/diagnostic: seconds after the start of the stall")
-      ->check(number(0, kMaxDurationS, "s"))
-      ->group("Test/diagnostic")
-      ->type_name("SECONDS");
-  run_cmd->add_option("--stall-for-s", run.stall_for_s, "Test/diagnostic: how long the loop stalls")
-      ->check(number(0, 3600, "s"))
-      ->group("Test/diagnostic")
-      ->type_name("SECONDS");
   run_cmd->footer(env_footer(kDdsEnvironment +
-                             "  NOTIFY_SOCKET, WATCHDOG_USEC      systemd: readiness (Type=notify) and the watchdog\n"
-                             "  VE_TEST_STALL_AXIS=NAME:AFTER_S:FOR_S  test hook, as --stall-axis\n"));
+                             "  NOTIFY_SOCKET, WATCHDOG_USEC      systemd: readiness (Type=notify) and the watchdog\n"));
 
   // ---- check
   CheckOptions& check = cl.check;

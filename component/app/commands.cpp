@@ -133,19 +133,11 @@ struct DiagnosticsAccumulator {
   }
 };
 
-/// Test/diagnostic hook: stall one axis' loop once.
-struct StallHook {
-  bool armed = false;
-  double after_s = 0.0;
-  double for_s = 0.0;
-};
-
 /// Per-axis loop state shared with the status reporter.
 struct AxisLoop {
   AxisSetup setup;
   std::thread thread;
   int slot = -1;  ///< StateWriter::add_axis
-  StallHook stall;
   std::atomic<std::uint64_t> samples{0};    ///< estimated
   std::atomic<std::uint64_t> published{0};  ///< state samples written (every publish_divider-th)
   std::atomic<std::uint64_t> write_failures{0};
@@ -215,12 +207,10 @@ void fill_diagnostics(const AxisLoop& loop, const DiagnosticsAccumulator& acc, c
   d.velocity_std_ratio(est.velocity_std_mps / kVelocityStdBudgetMps);
 }
 
-/// Sleeps for `seconds` unless the source is stopped first (checks every 10 ms).
-void stall_sleep(double seconds, const std::atomic<bool>& stopping) {
-  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-  while (!stopping.load() && std::chrono::steady_clock::now() < until)
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-}
+/// A source silent this long (its reads time out) is said in the log, once; and again
+/// when it sends again, as is a jump of this long in the samples' own times (a silence
+/// the loop did not wait through, being behind).
+constexpr std::int64_t kSilenceLoggedNs = 100000000;
 
 void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnostics, const std::atomic<bool>& stopping) {
   core::RawSample sample;
@@ -234,28 +224,39 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
   const auto samples_per_diag = static_cast<std::uint64_t>(
       std::max(1.0, std::round(loop.setup.config.motor.sample_rate_hz * kDiagnosticsPeriodNs * 1e-9)));
   const std::int64_t start_ns = clock_ns(CLOCK_MONOTONIC);
-  const std::int64_t stall_at_ns = start_ns + static_cast<std::int64_t>(loop.stall.after_s * 1e9);
   DiagnosticsAccumulator acc;
   acc.reset(start_ns);
   std::int64_t last_arrival_ns = 0;
   const int publish_divider = std::max(1, loop.setup.config.output.publish_divider);
   int until_publish = 1;  // the first estimate is published
   std::uint32_t last_status = 0;
+  bool silent = false;  // said in the log: the source has sent nothing for kSilenceLoggedNs
+  std::int64_t last_sample_t_ns = 0;
   for (;;) {
     const auto st = source.read(sample);
-    if (st == drivers::ReadStatus::timeout) continue;
+    if (st == drivers::ReadStatus::timeout) {
+      const std::int64_t quiet_ns = clock_ns(CLOCK_MONOTONIC) - (last_arrival_ns != 0 ? last_arrival_ns : start_ns);
+      if (!silent && quiet_ns >= kSilenceLoggedNs) {
+        silent = true;
+        spdlog::warn("axis '{}': no sample for {:.0f} ms: the sensor source is silent", loop.setup.config.name,
+                     static_cast<double>(quiet_ns) * 1e-6);
+      }
+      continue;
+    }
     if (st != drivers::ReadStatus::ok) {
       loop.end_reason = st == drivers::ReadStatus::error ? source.last_error() : std::string();
       break;
     }
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
-    if (loop.stall.armed && arrival_ns >= stall_at_ns) {
-      loop.stall.armed = false;
-      spdlog::warn("axis '{}': test hook: stalling the loop for {:.3f} s", loop.setup.config.name, loop.stall.for_s);
-      stall_sleep(loop.stall.for_s, stopping);
-      spdlog::info("axis '{}': test hook: stall over", loop.setup.config.name);
+    const std::int64_t sample_gap_ns = last_arrival_ns != 0 ? sample.t_ns - last_sample_t_ns : 0;
+    if (silent || sample_gap_ns >= kSilenceLoggedNs) {
+      silent = false;
+      const std::int64_t waited_ns = arrival_ns - (last_arrival_ns != 0 ? last_arrival_ns : start_ns);
+      spdlog::info("axis '{}': samples again after {:.3f} s without any", loop.setup.config.name,
+                   static_cast<double>(std::max(waited_ns, sample_gap_ns)) * 1e-9);
     }
+    last_sample_t_ns = sample.t_ns;
     const core::EncoderEstimate& est = pipeline.step(sample);
     if ((est.status ^ last_status) & core::status::kHomed) {
       // Rare (start-up, a long gap): worth a line in the log.
@@ -322,36 +323,6 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
   // deadline no longer runs while the other axes go on.
   if (!stopping.load()) writer.retire_axis(loop.slot);
   loop.finished.store(true);
-}
-
-/// Stall hook from the options or, when they name none, from VE_TEST_STALL_AXIS="NAME:AFTER_S:FOR_S".
-bool stall_hook(const RunOptions& options, std::string& axis, double& after_s, double& for_s) {
-  if (!options.stall_axis.empty()) {
-    axis = options.stall_axis;
-    after_s = options.stall_after_s;
-    for_s = options.stall_for_s;
-    return true;
-  }
-  const char* env = std::getenv("VE_TEST_STALL_AXIS");
-  if (env == nullptr || *env == '\0') return false;
-  const std::string text(env);
-  const auto a = text.find(':');
-  const auto b = a == std::string::npos ? a : text.find(':', a + 1);
-  if (b == std::string::npos) {
-    spdlog::warn("VE_TEST_STALL_AXIS='{}' ignored: expected NAME:AFTER_S:FOR_S", text);
-    return false;
-  }
-  auto seconds = [](const std::string& t, double max, double& out) {
-    char* end = nullptr;
-    out = std::strtod(t.c_str(), &end);
-    return !t.empty() && *end == '\0' && std::isfinite(out) && out >= 0.0 && out <= max;
-  };
-  if (!seconds(text.substr(a + 1, b - a - 1), 31536000.0, after_s) || !seconds(text.substr(b + 1), 3600.0, for_s)) {
-    spdlog::warn("VE_TEST_STALL_AXIS='{}' ignored: AFTER_S must be 0..31536000 s and FOR_S 0..3600 s", text);
-    return false;
-  }
-  axis = text.substr(0, a);
-  return true;
 }
 
 }  // namespace
@@ -437,23 +408,6 @@ int run_command(const RunOptions& options) {
   if (!ctx) {
     spdlog::error("{}", error);
     return 1;
-  }
-  {
-    std::string stall_axis;
-    double stall_after = 0.0, stall_for = 0.0;
-    if (stall_hook(options, stall_axis, stall_after, stall_for)) {
-      bool found = false;
-      for (auto& loop : loops) {
-        if (loop->setup.config.name != stall_axis) continue;
-        loop->stall = StallHook{true, stall_after, stall_for};
-        found = true;
-      }
-      if (!found) {
-        std::fprintf(stderr, "--stall-axis: no axis '%s'\n", stall_axis.c_str());
-        return 2;
-      }
-      spdlog::warn("test hook: axis '{}' will stall for {:.3f} s after {:.3f} s", stall_axis, stall_for, stall_after);
-    }
   }
   int exit_code = 0;
   std::atomic<bool> stopping{false};

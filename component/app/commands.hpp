@@ -20,13 +20,6 @@ struct RunOptions {
   /// Before starting the sources, wait up to this long for a first subscriber to
   /// match, so that it sees the motion from its first sample [s]. 0: start at once.
   double wait_for_subscriber_s = 0.0;
-  /// Test/diagnostic hook: the loop of axis `stall_axis` sleeps for stall_for_s
-  /// once, stall_after_s after it started, so that its deadline is missed while
-  /// the other axes keep publishing. "" = none. Also from the environment:
-  /// VE_TEST_STALL_AXIS="NAME:AFTER_S:FOR_S".
-  std::string stall_axis;
-  double stall_after_s = 0.0;
-  double stall_for_s = 0.0;
 };
 int run_command(const RunOptions& options);
 

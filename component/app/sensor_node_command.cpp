@@ -139,7 +139,10 @@ int sensor_node_command(const SensorNodeOptions& options) {
   while (!done) {
     int k = 0;
     for (; k < layout.samples_per_frame; ++k) {
-      const auto st = sim.read(batch[static_cast<std::size_t>(k)]);
+      auto st = sim.read(batch[static_cast<std::size_t>(k)]);
+      // A no_samples fault: the node is silent (sends nothing) until its next sample.
+      while (st == drivers::ReadStatus::timeout && !wait_for_termination(0.0))
+        st = sim.read(batch[static_cast<std::size_t>(k)]);
       if (st != drivers::ReadStatus::ok) {
         done = true;
         break;

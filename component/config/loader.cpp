@@ -310,10 +310,7 @@ struct Value::Impl {
   Pos pos;
 };
 
-Value::Value() = default;
-Value::~Value() = default;
-Value::Value(Value&&) noexcept = default;
-Value& Value::operator=(Value&&) noexcept = default;
+void Value::ImplDeleter::operator()(Impl* impl) const { delete impl; }
 
 bool Value::present() const { return impl_ && impl_->present; }
 bool Value::is_null() const { return present() && impl_->node.IsNull(); }
@@ -626,7 +623,7 @@ Value Map::value(std::string_view key) {
   if (!impl_) return v;
   Impl& mi = *impl_;
   if (std::find(mi.known.begin(), mi.known.end(), key) == mi.known.end()) mi.known.emplace_back(key);
-  v.impl_ = std::make_unique<Value::Impl>();
+  v.impl_.reset(new Value::Impl());
   v.impl_->doc = mi.doc;
   v.impl_->path = field(key);
   v.impl_->pos = mi.pos;
@@ -710,7 +707,7 @@ void Map::discard() {
 
 Map Document::root() {
   Value v;
-  v.impl_ = std::make_unique<Value::Impl>();
+  v.impl_.reset(new Value::Impl());
   v.impl_->doc = this;
   v.impl_->present = impl_->parsed;
   v.impl_->node = impl_->root;
@@ -931,6 +928,71 @@ constexpr double kMaxMagnetPeriods = 10000.0;
 /// room for the travel times counts_per_m (at most 1e14) without overflowing 64 bits.
 constexpr std::int64_t kMaxPresetCounts = 1000000000000000;
 
+/// The motor file's `filter:` numbers (core::FilterConfig): each read as a double in a
+/// closed range; the few keys of other types are read beside the table.
+struct FilterNumber {
+  const char* key;
+  double core::FilterConfig::*field;
+  double lo, hi;
+  const char* unit;
+};
+const FilterNumber kFilterNumbers[] = {
+    // --- the Kalman filter on [x, v, a] ---
+    {"jerk_std_mps3", &core::FilterConfig::jerk_std_mps3, 1e-6, 1e6, "m/s^3"},
+    {"snap_std_mps4", &core::FilterConfig::snap_std_mps4, 0.0, 1e9, "m/s^4"},
+    {"vibration_random_walk_mps2_per_sqrt_s", &core::FilterConfig::vibration_random_walk_mps2_per_sqrt_s,
+      0.0, 100.0, "m/s^2/sqrt(s)"},
+    {"hall_position_floor_m", &core::FilterConfig::hall_position_floor_m, 0.0, 1e-3, "m"},
+    {"hall_systematic_std_m", &core::FilterConfig::hall_systematic_std_m, 0.0, 1e-3, "m"},
+    {"gate_sigma", &core::FilterConfig::gate_sigma, 1.0, 1000.0, "sigma"},
+    {"initial_position_std_m", &core::FilterConfig::initial_position_std_m, 1e-9, 1.0, "m"},
+    {"initial_velocity_std_mps", &core::FilterConfig::initial_velocity_std_mps, 1e-6, 100.0, "m/s"},
+    {"initial_acceleration_std_mps2", &core::FilterConfig::initial_acceleration_std_mps2, 1e-6, 1e4, "m/s^2"},
+    {"accel_bias_std_mps2", &core::FilterConfig::accel_bias_std_mps2, 0.0, 100.0, "m/s^2"},
+    {"accel_bias_random_walk_mps2_per_sqrt_s", &core::FilterConfig::accel_bias_random_walk_mps2_per_sqrt_s,
+      0.0, 100.0, "m/s^2/sqrt(s)"},
+    {"accel_scale_std", &core::FilterConfig::accel_scale_std, 0.0, 0.5, ""},
+    {"accel_scale_random_walk_per_sqrt_s", &core::FilterConfig::accel_scale_random_walk_per_sqrt_s,
+      0.0, 1.0, "1/sqrt(s)"},
+    {"accel_spike_mps2", &core::FilterConfig::accel_spike_mps2, 1e-3, 1e5, "m/s^2"},
+    // --- sensor health ---
+    {"sensor_readmit_s", &core::FilterConfig::sensor_readmit_s, 0.001, 60.0, "s"},
+    {"sensor_readmit_sigma", &core::FilterConfig::sensor_readmit_sigma, 1.0, 100.0, "sigma"},
+    {"valid_position_accuracy_m", &core::FilterConfig::valid_position_accuracy_m, 1e-9, 1.0, "m"},
+    {"valid_velocity_accuracy_mps", &core::FilterConfig::valid_velocity_accuracy_mps, 1e-6, 100.0, "m/s"},
+    {"valid_confidence_sigma", &core::FilterConfig::valid_confidence_sigma, 0.5, 10.0, "sigma"},
+    // --- Hall adaptation to slow change (temperature, ageing; hall_adaptation.hpp) ---
+    {"hall_gain_random_walk_per_sqrt_s", &core::FilterConfig::hall_gain_random_walk_per_sqrt_s, 0.0, 1.0, "1/sqrt(s)"},
+    {"hall_offset_random_walk_v_per_sqrt_s", &core::FilterConfig::hall_offset_random_walk_v_per_sqrt_s,
+      0.0, 1.0, "V/sqrt(s)"},
+    {"hall_gain_initial_std", &core::FilterConfig::hall_gain_initial_std, 0.0, 0.5, ""},
+    {"hall_offset_initial_std_v", &core::FilterConfig::hall_offset_initial_std_v, 0.0, 1.0, "V"},
+    {"hall_drift_cusum", &core::FilterConfig::hall_drift_cusum, 0.0, 1e6, ""},
+    {"hall_gain_limit", &core::FilterConfig::hall_gain_limit, 0.001, 0.5, ""},
+    {"hall_offset_limit_v", &core::FilterConfig::hall_offset_limit_v, 0.001, 1.0, "V"},
+    {"hall_common_gain_initial_std", &core::FilterConfig::hall_common_gain_initial_std, 1e-6, 0.5, ""},
+    {"hall_common_gain_random_walk_per_sqrt_s", &core::FilterConfig::hall_common_gain_random_walk_per_sqrt_s,
+      0.0, 1.0, "1/sqrt(s)"},
+    {"magnet_remanence_tc_per_k", &core::FilterConfig::magnet_remanence_tc_per_k, -0.01, 0.01, "1/K"},
+    {"hall_gain_tc_per_k", &core::FilterConfig::hall_gain_tc_per_k, -0.01, 0.01, "1/K"},
+    {"hall_gain_tc_std_per_k", &core::FilterConfig::hall_gain_tc_std_per_k, 0.0, 0.01, "1/K"},
+    {"hall_offset_tc_std_v_per_k", &core::FilterConfig::hall_offset_tc_std_v_per_k, 0.0, 0.01, "V/K"},
+    {"temperature_coefficient_rel_std", &core::FilterConfig::temperature_coefficient_rel_std, 0.0, 1.0, ""},
+    {"hall_adaptation_model_std_v", &core::FilterConfig::hall_adaptation_model_std_v, 0.0, 0.1, "V"},
+    {"hall_common_gain_model_std", &core::FilterConfig::hall_common_gain_model_std, 0.0, 0.1, ""},
+    // --- steady motion ---
+    {"steady_jerk_std_mps3", &core::FilterConfig::steady_jerk_std_mps3, 0.0, 1e6, "m/s^3"},
+    {"steady_position_walk_m_per_sqrt_s", &core::FilterConfig::steady_position_walk_m_per_sqrt_s,
+      0.0, 1.0, "m/sqrt(s)"},
+    {"steady_hall_position_floor_m", &core::FilterConfig::steady_hall_position_floor_m, 0.0, 1e-3, "m"},
+    {"steady_jerk_limit_mps3", &core::FilterConfig::steady_jerk_limit_mps3, 1e-6, 1e6, "m/s^3"},
+    {"steady_hold_s", &core::FilterConfig::steady_hold_s, 1e-4, 60.0, "s"},
+    {"steady_exit_cusum", &core::FilterConfig::steady_exit_cusum, 1e-3, 1e6, ""},
+    // --- accelerometer bias steps ---
+    {"accel_bias_step_cusum", &core::FilterConfig::accel_bias_step_cusum, 0.0, 1e6, ""},
+    {"accel_bias_step_std_mps2", &core::FilterConfig::accel_bias_step_std_mps2, 1e-6, 100.0, "m/s^2"},
+};
+
 void read_motor(Map m, core::MotorConfig& motor) {
   m.require("motor", motor.name, non_empty());
   const bool pitch_ok = optional<double>(m, "magnet_pitch_m", motor.magnet_pitch_m, range(1e-3, 1.0, "m"));
@@ -992,56 +1054,10 @@ void read_motor(Map m, core::MotorConfig& motor) {
   {
     Map f = m.map("filter");
     core::FilterConfig& c = motor.filter;
-    f.get("jerk_std_mps3", c.jerk_std_mps3, range(1e-6, 1e6, "m/s^3"));
-    f.get("hall_position_floor_m", c.hall_position_floor_m, range(0.0, 1e-3, "m"));
-    f.get("hall_systematic_std_m", c.hall_systematic_std_m, range(0.0, 1e-3, "m"));
-    f.get("gate_sigma", c.gate_sigma, range(1.0, 1000.0, "sigma"));
-    f.get("initial_position_std_m", c.initial_position_std_m, range(1e-9, 1.0, "m"));
-    f.get("initial_velocity_std_mps", c.initial_velocity_std_mps, range(1e-6, 100.0, "m/s"));
-    f.get("initial_acceleration_std_mps2", c.initial_acceleration_std_mps2, range(1e-6, 1e4, "m/s^2"));
-    f.get("snap_std_mps4", c.snap_std_mps4, range(0.0, 1e9, "m/s^4"));
-    f.get("accel_bias_std_mps2", c.accel_bias_std_mps2, range(0.0, 100.0, "m/s^2"));
-    f.get("accel_bias_random_walk_mps2_per_sqrt_s", c.accel_bias_random_walk_mps2_per_sqrt_s,
-          range(0.0, 100.0, "m/s^2/sqrt(s)"));
-    f.get("accel_scale_std", c.accel_scale_std, range(0.0, 0.5, ""));
-    f.get("accel_scale_random_walk_per_sqrt_s", c.accel_scale_random_walk_per_sqrt_s, range(0.0, 1.0, "1/sqrt(s)"));
-    f.get("accel_spike_mps2", c.accel_spike_mps2, range(1e-3, 1e5, "m/s^2"));
+    for (const FilterNumber& n : kFilterNumbers) f.get(n.key, c.*n.field, range(n.lo, n.hi, n.unit));
     f.get("hall_rejections_before_reset", c.hall_rejections_before_reset, schema::in_range(1, 1000, "fixes"));
-    f.get("vibration_random_walk_mps2_per_sqrt_s", c.vibration_random_walk_mps2_per_sqrt_s,
-          range(0.0, 100.0, "m/s^2/sqrt(s)"));
     f.get("use_frame_accelerometer", c.use_frame_accelerometer);
-    f.get("steady_jerk_std_mps3", c.steady_jerk_std_mps3, range(0.0, 1e6, "m/s^3"));
-    f.get("steady_position_walk_m_per_sqrt_s", c.steady_position_walk_m_per_sqrt_s, range(0.0, 1.0, "m/sqrt(s)"));
-    f.get("steady_hall_position_floor_m", c.steady_hall_position_floor_m, range(0.0, 1e-3, "m"));
-    f.get("steady_jerk_limit_mps3", c.steady_jerk_limit_mps3, range(1e-6, 1e6, "m/s^3"));
-    f.get("steady_hold_s", c.steady_hold_s, range(1e-4, 60.0, "s"));
-    f.get("steady_exit_cusum", c.steady_exit_cusum, range(1e-3, 1e6, ""));
-    f.get("accel_bias_step_cusum", c.accel_bias_step_cusum, range(0.0, 1e6, ""));
-    f.get("accel_bias_step_std_mps2", c.accel_bias_step_std_mps2, range(1e-6, 100.0, "m/s^2"));
-    f.get("valid_position_accuracy_m", c.valid_position_accuracy_m, range(1e-9, 1.0, "m"));
-    f.get("valid_velocity_accuracy_mps", c.valid_velocity_accuracy_mps, range(1e-6, 100.0, "m/s"));
-    f.get("valid_confidence_sigma", c.valid_confidence_sigma, range(0.5, 10.0, "sigma"));
-    f.get("sensor_readmit_s", c.sensor_readmit_s, range(0.001, 60.0, "s"));
-    f.get("sensor_readmit_sigma", c.sensor_readmit_sigma, range(1.0, 100.0, "sigma"));
     f.get("hall_adaptation", c.hall_adaptation);
-    f.get("hall_gain_random_walk_per_sqrt_s", c.hall_gain_random_walk_per_sqrt_s, range(0.0, 1.0, "1/sqrt(s)"));
-    f.get("hall_offset_random_walk_v_per_sqrt_s", c.hall_offset_random_walk_v_per_sqrt_s,
-          range(0.0, 1.0, "V/sqrt(s)"));
-    f.get("hall_gain_initial_std", c.hall_gain_initial_std, range(0.0, 0.5, ""));
-    f.get("hall_offset_initial_std_v", c.hall_offset_initial_std_v, range(0.0, 1.0, "V"));
-    f.get("hall_drift_cusum", c.hall_drift_cusum, range(0.0, 1e6, ""));
-    f.get("hall_gain_limit", c.hall_gain_limit, range(0.001, 0.5, ""));
-    f.get("hall_offset_limit_v", c.hall_offset_limit_v, range(0.001, 1.0, "V"));
-    f.get("hall_adaptation_model_std_v", c.hall_adaptation_model_std_v, range(0.0, 0.1, "V"));
-    f.get("hall_common_gain_initial_std", c.hall_common_gain_initial_std, range(1e-6, 0.5, ""));
-    f.get("hall_common_gain_random_walk_per_sqrt_s", c.hall_common_gain_random_walk_per_sqrt_s,
-          range(0.0, 1.0, "1/sqrt(s)"));
-    f.get("hall_common_gain_model_std", c.hall_common_gain_model_std, range(0.0, 0.1, ""));
-    f.get("magnet_remanence_tc_per_k", c.magnet_remanence_tc_per_k, range(-0.01, 0.01, "1/K"));
-    f.get("hall_gain_tc_per_k", c.hall_gain_tc_per_k, range(-0.01, 0.01, "1/K"));
-    f.get("hall_gain_tc_std_per_k", c.hall_gain_tc_std_per_k, range(0.0, 0.01, "1/K"));
-    f.get("hall_offset_tc_std_v_per_k", c.hall_offset_tc_std_v_per_k, range(0.0, 0.01, "V/K"));
-    f.get("temperature_coefficient_rel_std", c.temperature_coefficient_rel_std, range(0.0, 1.0, ""));
   }
 }
 
@@ -1490,7 +1506,8 @@ class MachineLoader {
                   {"hall_stuck_mid", K::hall_stuck_mid}, {"hall_noisy", K::hall_noisy},
                   {"hall_intermittent", K::hall_intermittent}, {"hall_spikes", K::hall_spikes},
                   {"accel_dead", K::accel_dead}, {"accel_saturated", K::accel_saturated},
-                  {"accel_bias", K::accel_bias}, {"accel_missing", K::accel_missing}});
+                  {"accel_bias", K::accel_bias}, {"accel_missing", K::accel_missing},
+                  {"no_samples", K::no_samples}});
       if (!f.has("kind")) f.required("kind");
       const bool hall_kind = fc.kind == K::hall_stuck_high || fc.kind == K::hall_stuck_low ||
                              fc.kind == K::hall_stuck_mid || fc.kind == K::hall_noisy ||
@@ -1513,6 +1530,7 @@ class MachineLoader {
         case K::hall_intermittent: f.get("magnitude", fc.magnitude, range(0.0, 1.0, "(probability)")); break;
         case K::hall_spikes: f.get("magnitude", fc.magnitude, range(-100.0, 100.0, "V")); break;
         case K::accel_bias: f.get("magnitude", fc.magnitude, range(-1e4, 1e4, "m/s^2")); break;
+        case K::no_samples: f.reject("magnitude", "not used with kind no_samples (the node sends nothing)"); break;
         default: f.get("magnitude", fc.magnitude, range(-1e4, 1e4, "")); break;
       }
       if (start_ok && end_ok && fc.end_s <= fc.start_s)

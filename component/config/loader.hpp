@@ -100,11 +100,6 @@ class Map;
 /// A Value that was not in the file is "absent": conversions on it do nothing.
 class Value {
  public:
-  Value();
-  ~Value();
-  Value(Value&&) noexcept;
-  Value& operator=(Value&&) noexcept;
-
   bool present() const;
   bool is_null() const;
   bool is_map() const;
@@ -141,7 +136,12 @@ class Value {
   friend class Document;
   friend class Map;
   struct Impl;
-  std::unique_ptr<Impl> impl_;
+  /// Deletes an Impl where it is complete (loader.cpp), so that a Value, move-only,
+  /// needs no special member functions of its own.
+  struct ImplDeleter {
+    void operator()(Impl* impl) const;
+  };
+  std::unique_ptr<Impl, ImplDeleter> impl_;
 };
 
 /// A mapping being read. Keys read through it are "known"; when the Map is

@@ -17,11 +17,11 @@
 namespace ve::sim {
 
 struct CalibrationRunConfig {
-  double sweep_speed_mps = 0.02;
-  double sweep_acceleration_mps2 = 0.5;
-  double dynamic_duration_s = 5.0;
-  double dynamic_max_velocity_mps = 2.0;
-  double dynamic_max_acceleration_mps2 = 10.0;
+  double sweep_speed_mps = 0.02;               ///< the slow sweep over the whole travel and back [m/s]
+  double sweep_acceleration_mps2 = 0.5;        ///< its acceleration at each end [m/s^2]
+  double dynamic_duration_s = 5.0;             ///< then this long of fast multisine motion [s]
+  double dynamic_max_velocity_mps = 2.0;       ///< its peak speed (lowered until it fits a short travel)
+  double dynamic_max_acceleration_mps2 = 10.0; ///< its peak acceleration [m/s^2]
 };
 
 /// Simulates the calibration motion on the motor and sensors of `base` (its

@@ -123,6 +123,8 @@ struct FaultConfig {
     accel_saturated,    ///< ... its full scale
     accel_bias,         ///< ... an extra bias of `magnitude` m/s^2
     accel_missing,      ///< no accelerometer sample at all
+    no_samples,         ///< the sensor node sends nothing (a stalled node): the samples of the
+                        ///< window are lost; in real time read() returns timeout meanwhile
   };
   Kind kind = Kind::hall_stuck_high;
   int sensor = 0;          ///< Hall index, for the hall_* kinds
@@ -133,6 +135,11 @@ struct FaultConfig {
 
 /// Most faults one simulation injects (fixed, so the source never allocates).
 inline constexpr int kMaxFaults = 4;
+
+/// A silent simulated node (FaultConfig::Kind::no_samples) in real time: read() returns
+/// ReadStatus::timeout after this long without a sample, as the SocketCAN driver does
+/// after its default timeout_ms [ns].
+inline constexpr std::int64_t kSilentReadTimeoutNs = 20000000;
 
 struct SimConfig {
   MotionProfileConfig profile;

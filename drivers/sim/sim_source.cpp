@@ -61,6 +61,7 @@ constexpr std::uint64_t kKeyBiasWalk = 5ull << 60;
 constexpr std::uint64_t kKeyBaseAccel = 6ull << 60;
 constexpr std::uint64_t kKeyFault = 7ull << 60;
 constexpr std::uint64_t kKeyTemperatureReport = 8ull << 60;
+constexpr std::uint64_t kKeySilence = 9ull << 60;  // the bias walk over the samples a silent node lost
 
 double track_normal(std::uint64_t seed, std::uint64_t key, std::int64_t index) {
   return Stream(seed, key ^ (static_cast<std::uint64_t>(index) & ((1ull << 60) - 1))).normal();
@@ -163,6 +164,8 @@ SimSource::SimSource(const core::MotorConfig& motor, const SimConfig& cfg, doubl
     frame_omega_rps_ = kTwoPi * im.frame_vibration_hz;
     bias_step_mps2_ = im.accel_bias_random_walk_mps2_per_sqrt_s * std::sqrt(motor.sample_period_s());
   }
+  for (int f = 0; f < cfg.fault_count && f < kMaxFaults; ++f)
+    if (cfg.faults[f].kind == FaultConfig::Kind::no_samples) has_silence_ = true;
   if (cfg.duration_s > 0.0)
     max_samples_ = static_cast<std::uint64_t>(std::ceil(cfg.duration_s * motor.sample_rate_hz - 1e-6));
 
@@ -304,19 +307,75 @@ std::int64_t SimSource::sample_time_ns(std::uint64_t k) const {
       std::llround(static_cast<long double>(k) * 1e9L / static_cast<long double>(motor_.sample_rate_hz)));
 }
 
+void SimSource::start_clock() {
+  if (clock_started_) return;
+  clock_started_ = true;
+  clock_start_ns_ = drivers::monotonic_ns();
+}
+
 bool SimSource::wait_until_due(std::uint64_t n) {
-  if (n == 0) {
-    clock_start_ns_ = drivers::monotonic_ns();
-    return !stop_.load(std::memory_order_relaxed);
+  if (!clock_started_) {
+    start_clock();
+    if (n == 0) return !stop_.load(std::memory_order_relaxed);
   }
   return drivers::sleep_until(clock_start_ns_ + sample_time_ns(n), stop_);
+}
+
+std::uint64_t SimSource::next_sent(std::uint64_t n) const {
+  const double rate = motor_.sample_rate_hz;
+  for (bool moved = true; moved;) {
+    moved = false;
+    for (int f = 0; f < cfg_.fault_count && f < kMaxFaults; ++f) {
+      const FaultConfig& fault = cfg_.faults[f];
+      if (fault.kind != FaultConfig::Kind::no_samples) continue;
+      const double t_s = static_cast<double>(first_index_ + n) / rate;
+      if (t_s < fault.start_s || t_s >= fault.end_s) continue;
+      // The first sample index k with k / rate >= end_s (as inject_faults compares).
+      const double k_end = std::ceil(fault.end_s * rate);
+      if (!(k_end < 1e18)) return kNeverSent;
+      auto k = static_cast<std::uint64_t>(k_end);
+      while (k > 0 && static_cast<double>(k - 1) / rate >= fault.end_s) --k;
+      while (static_cast<double>(k) / rate < fault.end_s) ++k;
+      n = k - first_index_;  // > n: t_s < end_s
+      moved = true;
+    }
+  }
+  return n;
 }
 
 drivers::ReadStatus SimSource::read(core::RawSample& out) {
   if (!error_.empty()) return drivers::ReadStatus::error;
   if (stop_.load(std::memory_order_relaxed)) return drivers::ReadStatus::stopped;
-  const std::uint64_t n = samples_read_;
+  std::uint64_t n = next_index_;
   if (max_samples_ != 0 && n >= max_samples_) return drivers::ReadStatus::end_of_stream;
+  if (has_silence_) {
+    const std::uint64_t sent = next_sent(n);
+    if (sent != n) {
+      // A silent node (no_samples): samples n .. sent - 1 are never sent. In real time
+      // the caller hears nothing until `sent` is due (or the duration ends), and gets a
+      // timeout every kSilentReadTimeoutNs meanwhile, as from a silent CAN bus.
+      const std::uint64_t last = max_samples_ != 0 ? std::min(sent, max_samples_) : sent;
+      if (cfg_.realtime) {
+        start_clock();
+        const std::int64_t now = drivers::monotonic_ns();
+        if (last == kNeverSent || clock_start_ns_ + sample_time_ns(last) - now > kSilentReadTimeoutNs) {
+          if (!drivers::sleep_until(now + kSilentReadTimeoutNs, stop_)) return drivers::ReadStatus::stopped;
+          return drivers::ReadStatus::timeout;
+        }
+      }
+      if (last == kNeverSent || (max_samples_ != 0 && last >= max_samples_)) {
+        next_index_ = last == kNeverSent ? n : last;
+        return drivers::ReadStatus::end_of_stream;
+      }
+      // The accelerometer's bias walks on while nothing is sent: the sum of the lost
+      // samples' steps (one normal draw, scaled; its own stream).
+      if (bias_step_mps2_ > 0.0 && samples_read_ > 0)
+        bias_walk_mps2_ += bias_step_mps2_ * std::sqrt(static_cast<double>(sent - n)) *
+                           Stream(cfg_.noise_seed, kKeySilence ^ (first_index_ + sent)).normal();
+      n = sent;
+      next_index_ = sent;
+    }
+  }
   if (cfg_.realtime && !wait_until_due(n)) return drivers::ReadStatus::stopped;
 
   const std::uint64_t k = first_index_ + n;
@@ -356,7 +415,7 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   if (bias_step_mps2_ > 0.0) {
     // Sequential: the walk starts at the first sample read; each later one adds its
     // own step, drawn from (noise_seed, sample index) so a re-read stream repeats it.
-    if (n > 0) bias_walk_mps2_ += bias_step_mps2_ * Stream(cfg_.noise_seed, kKeyBiasWalk ^ k).normal();
+    if (samples_read_ > 0) bias_walk_mps2_ += bias_step_mps2_ * Stream(cfg_.noise_seed, kKeyBiasWalk ^ k).normal();
     bias_now_mps2_ = im.accel_bias_mps2 + bias_walk_mps2_;
   } else {
     bias_now_mps2_ = im.accel_bias_mps2;
@@ -389,7 +448,8 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
   if (cfg_.fault_count > 0) inject_faults(t_s, k, out);
 
   truth_ = {now.position_m, now.velocity_mps, now.acceleration_mps2};
-  samples_read_ = n + 1;
+  next_index_ = n + 1;
+  ++samples_read_;
   return drivers::ReadStatus::ok;
 }
 
@@ -431,6 +491,8 @@ void SimSource::inject_faults(double t_s, std::uint64_t k, core::RawSample& out)
         break;
       case K::accel_missing:
         out.accel_valid = false;
+        break;
+      case K::no_samples:  // read() sends no sample in the window
         break;
     }
   }

@@ -46,6 +46,9 @@ class SimSource final : public drivers::SensorSource {
   /// Realtime: the first call returns at once and starts the clock; sample n is
   /// returned no earlier than n periods later on CLOCK_MONOTONIC (no drift; a late
   /// caller catches up without sleeping). Non-realtime: returns at once.
+  /// A no_samples fault: the samples of its window are never returned (seq and t_ns
+  /// jump over them); in real time read() returns ReadStatus::timeout every
+  /// kSilentReadTimeoutNs until the next sample is due, as a silent CAN node's driver does.
   drivers::ReadStatus read(core::RawSample& out) override;
   /// Carriage state at the instant of the last sample read (not delayed).
   const core::Truth* truth() const override { return samples_read_ > 0 ? &truth_ : nullptr; }
@@ -100,7 +103,7 @@ class SimSource final : public drivers::SensorSource {
   const MotionProfile& profile() const { return profile_; }
   const core::MotorConfig& motor() const { return motor_; }
   const SimConfig& config() const { return cfg_; }
-  /// Samples returned so far.
+  /// Samples returned so far (without those a no_samples fault withheld).
   std::uint64_t samples_read() const { return samples_read_; }
   /// Simulated instant of sample index k (as in RawSample::seq) [ns].
   std::int64_t sample_time_ns(std::uint64_t k) const;
@@ -116,7 +119,12 @@ class SimSource final : public drivers::SensorSource {
 
   void build_track();
   double field_shape(double theta) const;
+  void start_clock();                    // real time: at the first read()
   bool wait_until_due(std::uint64_t n);  // false: stopped while waiting
+  /// The first stream index >= n that no no_samples fault withholds; kNeverSent when
+  /// one lasts for good.
+  std::uint64_t next_sent(std::uint64_t n) const;
+  static constexpr std::uint64_t kNeverSent = ~0ull;
   void inject_faults(double t_s, std::uint64_t k, core::RawSample& out) const;
 
   core::MotorConfig motor_;
@@ -147,9 +155,12 @@ class SimSource final : public drivers::SensorSource {
   std::uint64_t first_index_ = 0;
   std::uint64_t max_samples_ = 0;  // 0: unlimited
   std::uint64_t samples_read_ = 0;
+  std::uint64_t next_index_ = 0;   // stream index (from first_index_) of the next sample
+  bool has_silence_ = false;       // a no_samples fault is configured
   core::Truth truth_{};
 
   std::atomic<bool> stop_{false};
+  bool clock_started_ = false;
   std::int64_t clock_start_ns_ = 0;  // CLOCK_MONOTONIC at the first read
 };
 

@@ -58,7 +58,6 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     case Subcommand::run:
       require(in(cl.run.duration_s, 0, kYear) && in(cl.run.wait_for_subscriber_s, 0, kYear));
       require(in(cl.run.status_period_s, 0.01, 86400));
-      require(in(cl.run.stall_after_s, 0, kYear) && in(cl.run.stall_for_s, 0, 3600));
       require(!cl.run.domain || (*cl.run.domain >= 0 && *cl.run.domain <= 232));
       break;
     case Subcommand::calibrate:

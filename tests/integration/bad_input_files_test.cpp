@@ -614,6 +614,13 @@ std::vector<Case> machine_cases() {
                "is not one of"});
   c.push_back({"accelerometer fault with a sensor index", Kind::machine, f, "[{kind: accel_dead, sensor: 2}]",
                f + "[0].sensor", "only used with the hall_"});
+  c.push_back({"silent node with a magnitude", Kind::machine, f,
+               "[{kind: no_samples, start_s: 1, end_s: 2, magnitude: 1}]", f + "[0].magnitude",
+               "not used with kind no_samples"});
+  c.push_back({"silent node with a sensor index", Kind::machine, f, "[{kind: no_samples, sensor: 2}]",
+               f + "[0].sensor", "only used with the hall_"});
+  c.push_back({"silent node ending before it starts", Kind::machine, f,
+               "[{kind: no_samples, start_s: 2, end_s: 1.5}]", f + "[0].end_s", "must be after start_s"});
   c.push_back({"five faults", Kind::machine, f,
                "[{kind: accel_dead}, {kind: accel_dead}, {kind: accel_dead}, {kind: accel_dead}, {kind: accel_dead}]",
                f, "at most 4"});

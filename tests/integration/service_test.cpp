@@ -1,6 +1,7 @@
 // systemd supervision without systemd: a datagram socket stands in for
 // NOTIFY_SOCKET. `run` must say READY=1 only once it publishes, pet the watchdog
-// only while its sample loop makes progress, and say STOPPING=1 on SIGTERM.
+// only while its sample loop makes progress (not while its sensor node is silent),
+// and say STOPPING=1 on SIGTERM.
 #include <gtest/gtest.h>
 
 #include <sys/socket.h>
@@ -39,21 +40,22 @@ TEST(Service, ReadyWatchdogWhileHealthyAndStopping) {
   timeval tv{0, 50000};
   setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
 
-  // Watchdog every 0.25 s (half of 0.5 s); the sample loop stalls 1.5 s after start for 1 s.
+  // Watchdog every 0.25 s (half of 0.5 s); the axis' sensor node (the simulator with a
+  // no_samples fault) sends nothing from 1.5 s after its first sample for 1 s, so the
+  // sample loop makes no progress.
   const double stall_s = 1.0;
   setenv("NOTIFY_SOCKET", path.c_str(), 1);
   setenv("WATCHDOG_USEC", "500000", 1);
-  setenv("VE_TEST_STALL_AXIS", "x:1.5:1.0", 1);
-  ve::test::ChildProcess run(
-      {VE_BINARY, "run", "--domain", std::to_string(ve::test::dds_domain()), "--duration", "60"},
-      (dir.path / "run.log").string());
+  ve::test::ChildProcess run({VE_BINARY, "run", "--config",
+                              std::string(VE_SOURCE_DIR) + "/tests/integration/data/silent_node.yaml", "--domain",
+                              std::to_string(ve::test::dds_domain()), "--duration", "60"},
+                             (dir.path / "run.log").string());
   unsetenv("NOTIFY_SOCKET");
   unsetenv("WATCHDOG_USEC");
-  unsetenv("VE_TEST_STALL_AXIS");
   ASSERT_TRUE(run.started());
 
   // Each message is put in the phase of the process' own log when it arrived: before
-  // the stall began, during it, after it. What is checked is the order of events, not
+  // the stall began (the loop logs a source silent for 100 ms), during it, after it. What is checked is the order of events, not
   // when they happened: a slower build (a sanitizer) or a loaded host moves them all.
   enum Phase { kBefore, kDuring, kAfter };
   const auto t0 = std::chrono::steady_clock::now();
@@ -65,9 +67,9 @@ TEST(Service, ReadyWatchdogWhileHealthyAndStopping) {
     char buf[512];
     const ssize_t n = recv(fd, buf, sizeof buf - 1, 0);
     const std::string log = run.log();
-    const Phase now = log.find("stall over") != std::string::npos       ? kAfter
-                      : log.find("stalling the loop") != std::string::npos ? kDuring
-                                                                           : kBefore;
+    const Phase now = log.find("samples again after") != std::string::npos           ? kAfter
+                      : log.find("the sensor source is silent") != std::string::npos ? kDuring
+                                                                                     : kBefore;
     if (n > 0) {
       buf[n] = '\0';
       got.push_back({std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), buf});
@@ -87,7 +89,7 @@ TEST(Service, ReadyWatchdogWhileHealthyAndStopping) {
 
   ASSERT_FALSE(got.empty()) << run.log();
   EXPECT_EQ(got.front().text.rfind("READY=1", 0), 0u) << "the first message is READY=1: " << got.front().text;
-  ASSERT_NE(run.log().find("stall over"), std::string::npos) << run.log();
+  ASSERT_NE(run.log().find("samples again after"), std::string::npos) << run.log();
   int before = 0, during = 0, largest_gap_ms = 0;
   double last = -1.0;
   for (std::size_t i = 0; i < got.size(); ++i) {

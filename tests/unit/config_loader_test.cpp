@@ -359,7 +359,8 @@ TEST(ConfigLoader, SimulatorFaultsAreLoadedAndChecked) {
                               "      faults:\n"                                                      // 6
                               "        - {kind: hall_stuck_high, sensor: 1, start_s: 2.0}\n"         // 7
                               "        - {kind: accel_noisy, start_s: 1.0}\n"                        // 8
-                              "        - {kind: hall_noisy, sensor: 2, start_s: 3, end_s: 1}\n");    // 9
+                              "        - {kind: hall_noisy, sensor: 2, start_s: 3, end_s: 1}\n"      // 9
+                              "        - {kind: no_samples, start_s: 1.5, end_s: 2.5}\n");           // 10
   const LoadResult r = load_machine_file(path);
   ASSERT_EQ(r.errors.size(), 2u) << to_string(r.errors);
   EXPECT_EQ(r.errors[0].line, 8);
@@ -371,6 +372,12 @@ TEST(ConfigLoader, SimulatorFaultsAreLoadedAndChecked) {
   EXPECT_EQ(sim.faults[0].kind, sim::FaultConfig::Kind::hall_stuck_high);
   EXPECT_EQ(sim.faults[0].sensor, 1);
   EXPECT_DOUBLE_EQ(sim.faults[0].start_s, 2.0);
+  // A silent node: a window, no sensor, no magnitude (their misuse: BadInputFiles).
+  ASSERT_EQ(sim.fault_count, 4);
+  const sim::FaultConfig& silent = sim.faults[3];
+  EXPECT_EQ(silent.kind, sim::FaultConfig::Kind::no_samples);
+  EXPECT_DOUBLE_EQ(silent.start_s, 1.5);
+  EXPECT_DOUBLE_EQ(silent.end_s, 2.5);
 }
 
 TEST(ConfigLoader, DuplicateKeyIsAnError) {
@@ -1032,7 +1039,8 @@ TEST(ConfigLoader, ShippedFilesPassTheRangeChecks) {
     const LoadResult r = load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/" + m);
     EXPECT_TRUE(r.ok()) << m << ":\n" << to_string(r.errors);
   }
-  for (const char* m : {"constant_velocity.yaml", "standstill.yaml", "statistics.yaml", "three_axes.yaml"}) {
+  for (const char* m : {"constant_velocity.yaml", "standstill.yaml", "statistics.yaml", "three_axes.yaml",
+                        "three_axes_y_silent.yaml", "silent_node.yaml"}) {
     const LoadResult r = load_machine_file(std::string(VE_SOURCE_DIR) + "/tests/integration/data/" + m);
     EXPECT_TRUE(r.ok()) << m << ":\n" << to_string(r.errors);
   }

@@ -1021,6 +1021,78 @@ TEST(SimSource, StopWakesBlockedRead) {
   EXPECT_EQ(src.read(s), ReadStatus::stopped);
 }
 
+// ---- a silent node (fault kind no_samples)
+
+SimConfig with_silence(SimConfig cfg, double start_s, double end_s) {
+  ve::sim::FaultConfig f;
+  f.kind = ve::sim::FaultConfig::Kind::no_samples;
+  f.start_s = start_s;
+  f.end_s = end_s;
+  cfg.faults[cfg.fault_count++] = f;
+  return cfg;
+}
+
+TEST(SimSource, SilentNodeLosesTheSamplesOfItsWindow) {
+  MotorConfig motor;  // 4000 Hz
+  auto cfg = offline(Kind::multisine);
+  cfg.duration_s = 1.0;
+  SimSource plain(motor, cfg);
+  SimSource silent(motor, with_silence(cfg, 0.5, 0.75));
+  RawSample a, b;
+  std::uint64_t read = 0;
+  while (silent.read(b) == ReadStatus::ok) {
+    // The same stream, less the window [0.5 s, 0.75 s): seq and t_ns jump over it.
+    ASSERT_EQ(plain.read(a), ReadStatus::ok);
+    while (a.seq < b.seq) ASSERT_EQ(plain.read(a), ReadStatus::ok);
+    EXPECT_FALSE(b.seq >= 2000 && b.seq < 3000) << b.seq;
+    EXPECT_EQ(a.t_ns, b.t_ns);
+    EXPECT_EQ(a.hall_v, b.hall_v);
+    EXPECT_EQ(a.accel_mps2, b.accel_mps2);
+    EXPECT_EQ(silent.truth()->position_m, plain.truth()->position_m);
+    ++read;
+  }
+  EXPECT_EQ(read, 3000u);
+  EXPECT_EQ(silent.samples_read(), 3000u);
+  EXPECT_EQ(silent.read(b), ReadStatus::end_of_stream);
+
+  // From the first sample on, and for good: the stream starts late, or ends.
+  SimSource late(motor, with_silence(offline(Kind::standstill), 0.0, 0.25));
+  ASSERT_EQ(late.read(b), ReadStatus::ok);
+  EXPECT_EQ(b.seq, 1000u);
+  EXPECT_EQ(b.t_ns, 250000000);
+  ve::sim::FaultConfig forever;
+  SimSource dead(motor, with_silence(offline(Kind::standstill), 0.1, forever.end_s));
+  read = 0;
+  while (dead.read(b) == ReadStatus::ok) ++read;
+  EXPECT_EQ(read, 400u);
+  EXPECT_EQ(dead.read(b), ReadStatus::end_of_stream);
+}
+
+TEST(SimSource, SilentNodeInRealTimeTimesOutUntilItsNextSample) {
+  MotorConfig motor;  // 4000 Hz
+  SimConfig cfg;      // real time
+  cfg.profile.kind = Kind::standstill;
+  SimSource src(motor, with_silence(cfg, 0.0, 0.1));
+  RawSample s;
+  int timeouts = 0;
+  ReadStatus st;
+  while ((st = src.read(s)) == ReadStatus::timeout) ++timeouts;
+  ASSERT_EQ(st, ReadStatus::ok);
+  // Silent from the start (the first read starts the clock) for 0.1 s: at least one
+  // timeout, each after 20 ms without a sample, none once the next one is due within 20 ms.
+  EXPECT_GE(timeouts, 1);
+  EXPECT_LE(timeouts, 4);
+  EXPECT_EQ(s.seq, 400u);
+  ASSERT_EQ(src.read(s), ReadStatus::ok);
+  EXPECT_EQ(s.seq, 401u);
+
+  // stop() ends a silence for good.
+  SimSource dead(motor, with_silence(cfg, 0.0, ve::sim::FaultConfig{}.end_s));
+  EXPECT_EQ(dead.read(s), ReadStatus::timeout);
+  dead.stop();
+  EXPECT_EQ(dead.read(s), ReadStatus::stopped);
+}
+
 // ---- temperature model
 
 using TProfile = ve::sim::TemperatureConfig::Profile;
