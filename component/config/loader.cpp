@@ -1374,7 +1374,7 @@ class MachineLoader {
           }));
     m.get("cyclic_timer_ms", c.cyclic_timer_ms, schema::in_range<int>(0, 65535, "ms"));
     m.get("heartbeat_ms", c.heartbeat_ms, schema::in_range<int>(0, 65535, "ms"));
-    m.get("transmission_type", c.transmission_type, Check<int>([](const int& t) {
+    const bool type_ok = m.get("transmission_type", c.transmission_type, Check<int>([](const int& t) {
             return (t >= 1 && t <= 240) || t == 254 || t == 255
                        ? std::string()
                        : "must be 1..240 (every n-th SYNC), 254 or 255 (cyclic, cyclic_timer_ms), got " + std::to_string(t);
@@ -1405,10 +1405,10 @@ class MachineLoader {
           mapping.error("must map position (6004h); speed may follow it");
       }
     }
-    if (c.enabled && c.cyclic_timer_ms == 0 && (c.transmission_type == 254 || c.transmission_type == 255) &&
-        m.has("transmission_type"))
-      m.value("cyclic_timer_ms").error("transmission_type " + std::to_string(c.transmission_type) +
-                                       " sends TPDO1 every cyclic_timer_ms: give it a period > 0");
+    if (c.enabled && type_ok && c.cyclic_timer_ms == 0 && (c.transmission_type == 254 || c.transmission_type == 255))
+      m.value("transmission_type")
+          .error(std::to_string(c.transmission_type) +
+                 " sends TPDO1 every cyclic_timer_ms (6200h): give cyclic_timer_ms a period > 0");
   }
 
   /// Two CANopen nodes on one interface must have different node ids.
