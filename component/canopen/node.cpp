@@ -57,7 +57,7 @@ const Object* ObjectDictionary::object(std::uint16_t index) const {
 std::uint16_t alarms_of(const AxisSnapshot& s) {
   std::uint16_t a = 0;
   if (!s.present || !(s.status & core::status::kValid)) a |= alarm::kPositionError;
-  if (s.status & (core::status::kSensorFault | (0xFFu << core::status::kHallFaultShift))) a |= alarm::kHallFault;
+  if (s.status & (0xFFu << core::status::kHallFaultShift)) a |= alarm::kHallFault;
   if (s.status & core::status::kAccelFault) a |= alarm::kAccelFault;
   return a;
 }
@@ -245,8 +245,11 @@ std::int32_t Node::speed_steps(const AxisSnapshot& s, std::int64_t t_ns) const {
 }
 
 void Node::refresh(std::int64_t rt_ns) {
+  // The estimate current at rt_ns (a SYNC handled late still gets the position at
+  // its reception instant, not one propagated back from a newer estimate).
   AxisSnapshot s;
-  if (box_ && !box_->read(s)) ++counters_.stale_reads;
+  if (box_) box_->read_at(rt_ns, s);
+  if (s.present && s.t_ns > rt_ns) ++counters_.stale_reads;  // every estimate kept is newer
   const std::uint16_t alarms = alarms_of(s);
   od_.find(0x6503, 0)->value = alarms;
   od_.find(0x6505, 0)->value = warnings_of(s);
@@ -279,8 +282,8 @@ void Node::send_tpdo(std::int64_t rt_ns, Outbox& out) {
 }
 
 void Node::check_alarms(std::int64_t mono_ns, Outbox& out) {
-  AxisSnapshot s;
-  if (box_ && !box_->read(s)) return;
+  AxisSnapshot s;  // none yet: position error
+  if (box_) box_->read(s);
   const std::uint16_t alarms = alarms_of(s);
   const std::uint16_t hall_mask = static_cast<std::uint16_t>((s.status >> core::status::kHallFaultShift) & 0xFFu);
   if (alarms == last_alarms_ && hall_mask == last_hall_mask_) return;

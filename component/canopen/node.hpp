@@ -152,7 +152,7 @@ struct NodeCounters {
   std::uint64_t sdo_aborts = 0;
   std::uint64_t emcys = 0;
   std::uint64_t heartbeats = 0;
-  std::uint64_t stale_reads = 0;  ///< a snapshot read that kept overlapping a write
+  std::uint64_t stale_reads = 0;  ///< no estimate kept at or before the instant asked for
 };
 
 class Node {

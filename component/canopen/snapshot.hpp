@@ -1,10 +1,12 @@
 // The estimator's state handed to a CANopen node: one writer (the axis' sample
-// loop), any number of readers (the node's thread). A sequence lock over atomics:
-// the writer never waits, a reader retries the few times a write overlapped it.
-// No allocation, no system call.
+// loop), any number of readers (the node's thread). A ring of sequence-locked slots
+// over atomics: the writer never waits, a reader retries the few times a write
+// overlapped it. No allocation, no system call.
 #pragma once
 
+#include <array>
 #include <atomic>
+#include <climits>
 #include <cstdint>
 
 namespace ve::canopen {
@@ -18,51 +20,88 @@ struct AxisSnapshot {
   std::uint32_t status = 0;    ///< the product's status word (core/status.hpp)
 };
 
+/// The last kHistory estimates, so that a reader late by up to kHistory sample periods
+/// (a SYNC handled after newer estimates came in) still finds the estimate that was
+/// current at a given instant.
 class SnapshotBox {
  public:
+  static constexpr std::uint64_t kHistory = 1024;
+
   /// Single writer.
   void publish(const AxisSnapshot& s) {
-    const std::uint32_t q = seq_.load(std::memory_order_relaxed);
-    seq_.store(q + 1, std::memory_order_relaxed);  // odd: write in progress
+    const std::uint64_t k = count_.load(std::memory_order_relaxed);
+    Slot& slot = slots_[k % kHistory];
+    const std::uint32_t q = slot.seq.load(std::memory_order_relaxed);
+    slot.seq.store(q + 1, std::memory_order_relaxed);  // odd: write in progress
     std::atomic_thread_fence(std::memory_order_release);
-    t_ns_.store(s.t_ns, std::memory_order_relaxed);
-    x_.store(s.position_m, std::memory_order_relaxed);
-    v_.store(s.velocity_mps, std::memory_order_relaxed);
-    a_.store(s.acceleration_mps2, std::memory_order_relaxed);
-    status_.store(s.status, std::memory_order_relaxed);
-    present_.store(s.present, std::memory_order_relaxed);
-    seq_.store(q + 2, std::memory_order_release);
+    slot.index.store(k, std::memory_order_relaxed);
+    slot.t_ns.store(s.t_ns, std::memory_order_relaxed);
+    slot.x.store(s.position_m, std::memory_order_relaxed);
+    slot.v.store(s.velocity_mps, std::memory_order_relaxed);
+    slot.a.store(s.acceleration_mps2, std::memory_order_relaxed);
+    slot.status.store(s.status, std::memory_order_relaxed);
+    slot.seq.store(q + 2, std::memory_order_release);
+    count_.store(k + 1, std::memory_order_release);
   }
 
-  /// A consistent copy; false only when writes kept overlapping (then `out` is unchanged).
-  bool read(AxisSnapshot& out) const {
-    for (int attempt = 0; attempt < 64; ++attempt) {
-      const std::uint32_t q0 = seq_.load(std::memory_order_acquire);
+  /// The newest estimate. False when none was published yet (`out.present` false) or
+  /// writes kept overlapping the read.
+  bool read(AxisSnapshot& out) const { return read_at(INT64_MAX, out); }
+
+  /// The newest estimate whose instant is at or before `t_ns`; when every estimate
+  /// kept is newer, the oldest kept one. False (out.present false) when none was
+  /// published yet or reads kept being overtaken.
+  bool read_at(std::int64_t t_ns, AxisSnapshot& out) const {
+    out = AxisSnapshot{};
+    const std::uint64_t n = count_.load(std::memory_order_acquire);
+    if (n == 0) return false;
+    const std::uint64_t oldest = n > kHistory ? n - kHistory + 1 : 0;  // the slot being written next is skipped
+    bool have = false;
+    for (std::uint64_t i = n; i-- > oldest;) {
+      AxisSnapshot s;
+      if (!read_slot(i, s)) break;  // overwritten meanwhile: older ones are too
+      out = s;
+      have = true;
+      if (s.t_ns <= t_ns) return true;
+    }
+    return have;
+  }
+
+  std::uint64_t writes() const { return count_.load(std::memory_order_acquire); }
+
+ private:
+  struct Slot {
+    std::atomic<std::uint32_t> seq{0};
+    std::atomic<std::uint64_t> index{0};
+    std::atomic<std::int64_t> t_ns{0};
+    std::atomic<double> x{0.0}, v{0.0}, a{0.0};
+    std::atomic<std::uint32_t> status{0};
+  };
+
+  bool read_slot(std::uint64_t i, AxisSnapshot& out) const {
+    const Slot& slot = slots_[i % kHistory];
+    for (int attempt = 0; attempt < 16; ++attempt) {
+      const std::uint32_t q0 = slot.seq.load(std::memory_order_acquire);
       if (q0 & 1u) continue;
       AxisSnapshot s;
-      s.t_ns = t_ns_.load(std::memory_order_relaxed);
-      s.position_m = x_.load(std::memory_order_relaxed);
-      s.velocity_mps = v_.load(std::memory_order_relaxed);
-      s.acceleration_mps2 = a_.load(std::memory_order_relaxed);
-      s.status = status_.load(std::memory_order_relaxed);
-      s.present = present_.load(std::memory_order_relaxed);
+      s.present = true;
+      const std::uint64_t index = slot.index.load(std::memory_order_relaxed);
+      s.t_ns = slot.t_ns.load(std::memory_order_relaxed);
+      s.position_m = slot.x.load(std::memory_order_relaxed);
+      s.velocity_mps = slot.v.load(std::memory_order_relaxed);
+      s.acceleration_mps2 = slot.a.load(std::memory_order_relaxed);
+      s.status = slot.status.load(std::memory_order_relaxed);
       std::atomic_thread_fence(std::memory_order_acquire);
-      if (seq_.load(std::memory_order_relaxed) == q0) {
-        out = s;
-        return true;
-      }
+      if (slot.seq.load(std::memory_order_relaxed) != q0) continue;
+      if (index != i) return false;
+      out = s;
+      return true;
     }
     return false;
   }
 
-  std::uint32_t writes() const { return seq_.load(std::memory_order_acquire) / 2; }
-
- private:
-  std::atomic<std::uint32_t> seq_{0};
-  std::atomic<std::int64_t> t_ns_{0};
-  std::atomic<double> x_{0.0}, v_{0.0}, a_{0.0};
-  std::atomic<std::uint32_t> status_{0};
-  std::atomic<bool> present_{false};
+  std::atomic<std::uint64_t> count_{0};
+  std::array<Slot, kHistory> slots_{};
 };
 
 /// The estimate propagated to `t_ns` with the filter's velocity and acceleration

@@ -1417,10 +1417,12 @@ class MachineLoader {
     if (!c.enabled) return;
     for (std::size_t j = 0; j < i; ++j) {
       const CanopenConfig& o = cfg.axes[j].canopen;
-      if (o.enabled && o.interface == c.interface && o.node_id == c.node_id)
-        a.map("canopen").value("node_id").error("duplicate node id " + std::to_string(c.node_id) + " on interface '" +
+      if (!(o.enabled && o.interface == c.interface && o.node_id == c.node_id)) continue;
+      Map again = a.map("canopen");  // read once already: its other keys are not reported twice
+      again.value("node_id").error("duplicate node id " + std::to_string(c.node_id) + " on interface '" +
                                                 c.interface + "' (also axes[" + std::to_string(j) + "], axis '" +
                                                 cfg.axes[j].name + "')");
+      again.discard();
     }
   }
   // ---- end canopen node ----

@@ -82,8 +82,10 @@ TEST(CanopenConfig, BadValuesNameFileLineAndField) {
 TEST(CanopenConfig, DuplicateNodeIdOnOneInterfaceIsRefused) {
   expect_error(machine("    canopen: {interface: vcan0, node_id: 9}\n", "    canopen: {interface: vcan0, node_id: 9}\n"), 8,
                "axes[1].canopen.node_id", "duplicate node id 9 on interface 'vcan0' (also axes[0], axis 'x')");
-  // The same id on another interface is another bus.
   std::string file;
+  const auto dup = load(machine("    canopen: {interface: vcan0, node_id: 9}\n", "    canopen: {interface: vcan0, node_id: 9}\n"), file);
+  EXPECT_EQ(dup.errors.size(), 1u) << config::to_string(dup.errors);
+  // The same id on another interface is another bus.
   const auto r = load(machine("    canopen: {interface: vcan0, node_id: 9}\n", "    canopen: {interface: vcan1, node_id: 9}\n"), file);
   EXPECT_TRUE(r.ok()) << config::to_string(r.errors);
 }

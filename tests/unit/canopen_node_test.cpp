@@ -324,6 +324,27 @@ TEST(CanopenNode, SyncTpdoCarriesThePositionPropagatedToTheSyncInstant) {
   EXPECT_GT(std::abs(as_i32(le32(r[0], 0)) - 500000), 250);
 }
 
+TEST(CanopenNode, ALateSyncUsesTheEstimateCurrentAtItsReception) {
+  Bench b;
+  b.nmt(0x01);
+  // Three estimates 1 ms apart, each with its own motion; the SYNC came in at
+  // +1.5 ms but is handled after the third.
+  b.box.publish(valid_state(0.100, 0.0, 0.0, kT0));
+  b.box.publish(valid_state(0.200, 1.0, 10.0, kT0 + kMs));
+  b.box.publish(valid_state(0.300, -1.0, 0.0, kT0 + 2 * kMs));
+  auto r = b.sync(kT0 + 1500000);
+  ASSERT_EQ(r.size(), 1u);
+  const double dt = 0.5e-3;
+  EXPECT_EQ(as_i32(le32(r[0], 0)), std::llround((0.200 + 1.0 * dt + 0.5 * 10.0 * dt * dt) * 1e6));
+  // Older than every estimate kept: the oldest, propagated back (counted).
+  for (std::uint64_t i = 0; i < canopen::SnapshotBox::kHistory; ++i)
+    b.box.publish(valid_state(0.4, 0.0, 0.0, kT0 + 10 * kMs + static_cast<std::int64_t>(i)));
+  r = b.sync(kT0);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_EQ(as_i32(le32(r[0], 0)), 400000);
+  EXPECT_EQ(b.node.counters().stale_reads, 1u);
+}
+
 TEST(CanopenNode, TransmissionTypeNSendsOnEveryNthSync) {
   Bench b;
   b.box.publish(valid_state(0.25));
