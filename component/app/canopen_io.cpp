@@ -48,7 +48,7 @@ canopen::NodeConfig canopen_node_config(const config::AxisConfig& axis) {
 }
 
 CanopenNodeIo::CanopenNodeIo(const config::AxisConfig& axis, const canopen::SnapshotBox& box)
-    : axis_name_(axis.name), interface_(axis.canopen.interface), node_(canopen_node_config(axis), &box) {
+    : axis_name_(axis.name), interface_(axis.canopen.interface), box_(box), node_(canopen_node_config(axis), &box) {
   auto fail = [&](const std::string& what) {
     error_ = "axis '" + axis_name_ + "': canopen on '" + interface_ + "': " + what + ": " + std::strerror(errno);
     if (fd_ >= 0) ::close(fd_);
@@ -64,6 +64,10 @@ CanopenNodeIo::CanopenNodeIo(const config::AxisConfig& axis, const canopen::Snap
   if (setsockopt(fd_, SOL_CAN_RAW, CAN_RAW_FILTER, filters, sizeof filters) < 0) { fail("CAN_RAW_FILTER"); return; }
   const int one = 1;
   if (setsockopt(fd_, SOL_SOCKET, SO_TIMESTAMPNS, &one, sizeof one) < 0) { fail("SO_TIMESTAMPNS"); return; }
+  // Room for a burst of SYNC and SDO frames while this thread is not scheduled.
+  const int buf = 1 << 20;
+  if (setsockopt(fd_, SOL_SOCKET, SO_RCVBUFFORCE, &buf, sizeof buf) < 0)
+    setsockopt(fd_, SOL_SOCKET, SO_RCVBUF, &buf, sizeof buf);
   const unsigned ifindex = if_nametoindex(interface_.c_str());
   if (ifindex == 0) { fail("no such interface"); return; }
   sockaddr_can addr{};
@@ -165,6 +169,14 @@ void CanopenNodeIo::loop() {
             rx_rt = static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
           }
         if (rx_rt == 0) rx_rt = now_ns(CLOCK_REALTIME);
+        if ((cf.can_id & CAN_SFF_MASK) == 0x080) {
+          // A SYNC received while the estimate of an earlier instant is still being
+          // computed (a few microseconds): wait for it, so that the TPDO carries the
+          // newest estimate handed over before the SYNC. Never longer than 2 ms; the
+          // sample loop never waits for this thread.
+          const std::int64_t give_up = now_ns(CLOCK_MONOTONIC) + 2000000;
+          while (!box_.settled(rx_rt) && now_ns(CLOCK_MONOTONIC) < give_up) std::this_thread::yield();
+        }
         canopen::Frame f;
         f.id = cf.can_id & CAN_SFF_MASK;
         f.len = std::min<std::uint8_t>(cf.can_dlc, 8);

@@ -42,6 +42,7 @@ class CanopenNodeIo {
 
   std::string axis_name_;
   std::string interface_;
+  const canopen::SnapshotBox& box_;
   canopen::Node node_;
   int fd_ = -1;
   std::string error_;

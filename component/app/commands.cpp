@@ -254,6 +254,7 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
     }
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
+    if (loop.canopen) loop.canopen_state.begin(handover_rt_ns);  // a SYNC after this instant waits for it
     if (loop.stall.armed && arrival_ns >= stall_at_ns) {
       loop.stall.armed = false;
       spdlog::warn("axis '{}': test hook: stalling the loop for {:.3f} s", loop.setup.config.name, loop.stall.for_s);

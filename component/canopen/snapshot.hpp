@@ -27,6 +27,16 @@ class SnapshotBox {
  public:
   static constexpr std::uint64_t kHistory = 1024;
 
+  /// Single writer: an estimate for the instant `t_ns` is being computed (its
+  /// publish() follows). A reader answering a SYNC after `t_ns` may wait for it
+  /// (settled()) rather than use the estimate before it.
+  void begin(std::int64_t t_ns) { pending_.store(t_ns, std::memory_order_release); }
+  /// False while an estimate for an instant at or before `t_ns` is being computed.
+  bool settled(std::int64_t t_ns) const {
+    const std::int64_t p = pending_.load(std::memory_order_acquire);
+    return p == 0 || p > t_ns;
+  }
+
   /// Single writer.
   void publish(const AxisSnapshot& s) {
     const std::uint64_t k = count_.load(std::memory_order_relaxed);
@@ -42,6 +52,7 @@ class SnapshotBox {
     slot.status.store(s.status, std::memory_order_relaxed);
     slot.seq.store(q + 2, std::memory_order_release);
     count_.store(k + 1, std::memory_order_release);
+    pending_.store(0, std::memory_order_release);
   }
 
   /// The newest estimate. False when none was published yet (`out.present` false) or
@@ -101,6 +112,7 @@ class SnapshotBox {
   }
 
   std::atomic<std::uint64_t> count_{0};
+  std::atomic<std::int64_t> pending_{0};
   std::array<Slot, kHistory> slots_{};
 };
 
