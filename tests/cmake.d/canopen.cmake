@@ -14,3 +14,8 @@ target_compile_definitions(ve_canopen_vm_tests PRIVATE
 add_dependencies(ve_canopen_vm_tests virtual-encoder)
 gtest_discover_tests(ve_canopen_vm_tests TEST_FILTER "CanopenVm.*" DISCOVERY_TIMEOUT 60
   PROPERTIES LABELS "vm;integration" TIMEOUT 400 RUN_SERIAL TRUE)
+
+# The node's share of the SYNC-to-TPDO delay (a benchmark, not a test).
+if(TARGET bench_canopen)
+  target_link_libraries(bench_canopen PRIVATE ve_canopen)
+endif()
