@@ -68,8 +68,9 @@ void sdo_upload_position(benchmark::State& state) {
   req.id = 0x605;
   req.len = 8;
   req.data = {0x40, 0x04, 0x60, 0x00, 0, 0, 0, 0};
+  const std::int64_t now = kT0 + static_cast<std::int64_t>(canopen::SnapshotBox::kHistory) * 250000;
   for (auto _ : state) {
-    f.node.on_frame(req, kT0, 1, f.out);
+    f.node.on_frame(req, now, 1, f.out);
     benchmark::DoNotOptimize(f.out.frames[0]);
     f.out.clear();
   }

@@ -85,7 +85,7 @@ TEST(CanopenCli, CheckReportsTheBlockWithFileAndLine) {
   auto r = run(dir, {"check", "--config", m});
   EXPECT_EQ(r.code, 1);
   const std::string all = r.out + r.err;
-  EXPECT_NE(all.find(m + ":7:"), std::string::npos) << all;
+  EXPECT_NE(all.find(m + ":8:"), std::string::npos) << all;
   EXPECT_NE(all.find("axes[1].canopen.node_id: duplicate node id 12 on interface 'can0'"), std::string::npos) << all;
   EXPECT_NE(all.find("axes[1].canopen.cyclic_timer_ms: -1 out of range [0, 65535] ms"), std::string::npos) << all;
   const std::string ok = dir.write("ok.yaml", machine("    canopen: {interface: can0, node_id: 13}\n"));
