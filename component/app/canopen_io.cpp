@@ -96,7 +96,8 @@ std::string CanopenNodeIo::stats() const {
   return std::to_string(syncs_.load()) + " SYNC, " + std::to_string(tpdos_.load()) + " TPDO, " +
          std::to_string(sdo_.load()) + " SDO requests, " + std::to_string(emcy_.load()) + " EMCY, " +
          std::to_string(heartbeats_.load()) + " heartbeats, " + std::to_string(send_failures_.load()) +
-         " frames not sent";
+         " frames not sent, " + std::to_string(sync_wait_expired_.load()) +
+         " SYNCs answered before the estimate in progress (waited 2 ms)";
 }
 
 void CanopenNodeIo::start() {
@@ -175,7 +176,12 @@ void CanopenNodeIo::loop() {
           // newest estimate handed over before the SYNC. Never longer than 2 ms; the
           // sample loop never waits for this thread.
           const std::int64_t give_up = now_ns(CLOCK_MONOTONIC) + 2000000;
-          while (!box_.settled(rx_rt) && now_ns(CLOCK_MONOTONIC) < give_up) std::this_thread::yield();
+          bool settled = box_.settled(rx_rt);
+          while (!settled && now_ns(CLOCK_MONOTONIC) < give_up) {
+            std::this_thread::yield();
+            settled = box_.settled(rx_rt);
+          }
+          if (!settled) sync_wait_expired_.fetch_add(1, std::memory_order_relaxed);
         }
         canopen::Frame f;
         f.id = cf.can_id & CAN_SFF_MASK;

@@ -50,6 +50,8 @@ class CanopenNodeIo {
   std::atomic<bool> stopping_{false};
   std::atomic<std::uint64_t> send_failures_{0};
   std::atomic<std::uint64_t> syncs_{0}, tpdos_{0}, sdo_{0}, emcy_{0}, heartbeats_{0};
+  /// SYNCs answered without waiting for the estimate still being computed (2 ms passed).
+  std::atomic<std::uint64_t> sync_wait_expired_{0};
 };
 
 }  // namespace ve::app

@@ -252,6 +252,7 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
       loop.end_reason = st == drivers::ReadStatus::error ? source.last_error() : std::string();
       break;
     }
+    if (loop.canopen) loop.canopen_state.claim();
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
     if (loop.canopen) loop.canopen_state.begin(handover_rt_ns);  // a SYNC after this instant waits for it

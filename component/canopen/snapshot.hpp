@@ -31,10 +31,14 @@ class SnapshotBox {
   /// publish() follows). A reader answering a SYNC after `t_ns` may wait for it
   /// (settled()) rather than use the estimate before it.
   void begin(std::int64_t t_ns) { pending_.store(t_ns, std::memory_order_release); }
-  /// False while an estimate for an instant at or before `t_ns` is being computed.
+  /// Single writer, before reading the clock for begin(): an estimate of an instant
+  /// not yet known is coming (a SYNC waits for it too).
+  void claim() { pending_.store(kClaimed, std::memory_order_release); }
+  /// False while an estimate for an instant at or before `t_ns` (or of an instant not
+  /// yet stamped) is being computed.
   bool settled(std::int64_t t_ns) const {
     const std::int64_t p = pending_.load(std::memory_order_acquire);
-    return p == 0 || p > t_ns;
+    return p == 0 || (p != kClaimed && p > t_ns);
   }
 
   /// Single writer.
@@ -111,6 +115,7 @@ class SnapshotBox {
     return false;
   }
 
+  static constexpr std::int64_t kClaimed = 1;
   std::atomic<std::uint64_t> count_{0};
   std::atomic<std::int64_t> pending_{0};
   std::array<Slot, kHistory> slots_{};

@@ -506,6 +506,21 @@ TEST(CanopenSnapshot, ReadersNeverSeeATornState) {
   EXPECT_EQ(last.t_ns, 200000);
 }
 
+TEST(CanopenSnapshot, SettledTellsWhetherAnEstimateBeforeAnInstantIsInProgress) {
+  canopen::SnapshotBox box;
+  EXPECT_TRUE(box.settled(kT0));
+  box.claim();  // an estimate is coming, its instant not stamped yet
+  EXPECT_FALSE(box.settled(kT0));
+  box.begin(kT0 + 10);
+  EXPECT_FALSE(box.settled(kT0 + 10));  // a SYNC at or after its instant waits for it
+  EXPECT_TRUE(box.settled(kT0 + 9));    // one before it does not
+  box.publish(valid_state(0.1, 0.0, 0.0, kT0 + 10));
+  EXPECT_TRUE(box.settled(kT0 + 10));
+  canopen::AxisSnapshot s;
+  ASSERT_TRUE(box.read_at(kT0 + 10, s));
+  EXPECT_EQ(s.t_ns, kT0 + 10);
+}
+
 // ---------------------------------------------------------------------------
 // EDS: parsed back (an INI reader of the test's own) and compared with what the
 // node serves over SDO.
