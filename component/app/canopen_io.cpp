@@ -4,6 +4,8 @@
 #include <linux/can/raw.h>
 #include <net/if.h>
 #include <poll.h>
+#include <pthread.h>
+#include <sched.h>
 #include <sys/socket.h>
 #include <time.h>
 #include <unistd.h>
@@ -11,6 +13,8 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+
+#include <spdlog/spdlog.h>
 
 namespace ve::app {
 
@@ -100,10 +104,30 @@ std::string CanopenNodeIo::stats() const {
          " SYNCs answered before the estimate in progress (waited 2 ms)";
 }
 
-void CanopenNodeIo::start() {
+void CanopenNodeIo::start(const config::RealtimeConfig& realtime) {
   if (!ok() || thread_.joinable()) return;
   stopping_.store(false);
-  thread_ = std::thread([this] { loop(); });
+  const int priority = realtime.sample_thread_priority;
+  const std::vector<int> cpus = realtime.cpus_for(axis_name_);
+  thread_ = std::thread([this, priority, cpus] {
+    pthread_setname_np(pthread_self(), ("ve-co-" + axis_name_).substr(0, 15).c_str());
+    if (!cpus.empty()) {
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      for (int c : cpus) CPU_SET(c, &set);
+      if (const int rc = pthread_setaffinity_np(pthread_self(), sizeof set, &set))
+        spdlog::warn("axis '{}': canopen thread keeps its CPUs: {}", axis_name_, std::strerror(rc));
+    }
+    if (priority > 0) {
+      sched_param p{};
+      p.sched_priority = priority;
+      if (const int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &p))
+        spdlog::warn("axis '{}': canopen thread without SCHED_FIFO {}: {}", axis_name_, priority, std::strerror(rc));
+      else
+        spdlog::info("axis '{}': canopen thread at SCHED_FIFO {}", axis_name_, priority);
+    }
+    loop();
+  });
 }
 
 void CanopenNodeIo::stop() {

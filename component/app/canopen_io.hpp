@@ -29,8 +29,11 @@ class CanopenNodeIo {
 
   bool ok() const { return fd_ >= 0; }
   const std::string& last_error() const { return error_; }
-  /// Starts the node's thread (boot-up message, then pre-operational).
-  void start();
+  /// Starts the node's thread (boot-up message, then pre-operational), named
+  /// "ve-co-AXIS"; with `realtime` giving the sample threads a SCHED_FIFO priority, the
+  /// node's thread takes the same priority and the axis' CPUs (a SYNC is answered
+  /// ahead of DDS), and says so, or why not, in the log.
+  void start(const config::RealtimeConfig& realtime);
   void stop();
   std::string describe() const;
   /// Counters for the log at the end of a run.

@@ -546,7 +546,7 @@ int run_command(const RunOptions& options) {
     Realtime realtime(machine.realtime, axis_names);
     if (!realtime.ok()) return 1;
     for (auto& loop : loops)
-      if (loop->canopen) loop->canopen->start();  // boot-up; no estimate yet (6503h position error)
+      if (loop->canopen) loop->canopen->start(machine.realtime);  // boot-up; no estimate yet (6503h position error)
     for (auto& loop : loops)
       loop->thread = std::thread([&realtime, &state_writer, &diagnostics_writer, &stopping, l = loop.get()] {
         realtime.enter_sample_thread(l->setup.config.name);
