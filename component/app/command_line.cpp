@@ -112,7 +112,7 @@ const std::string kDdsEnvironment =
 std::string usage_hint(const CLI::App* sub) {
   if (sub == nullptr)
     return std::string("usage: ") + kProgram +
-           " [--log-level LEVEL] {run|check|calibrate|monitor|record|evaluate|sensor-node} [OPTIONS]; '" + kProgram +
+           " [--log-level LEVEL] {run|check|calibrate|monitor|record|evaluate|sensor-node|eds} [OPTIONS]; '" + kProgram +
            " --help' lists them\n";
   std::string required;
   for (const CLI::Option* o : sub->get_options())
@@ -210,6 +210,7 @@ const char* subcommand_name(Subcommand c) {
     case Subcommand::record: return "record";
     case Subcommand::evaluate: return "evaluate";
     case Subcommand::sensor_node: return "sensor-node";
+    case Subcommand::eds: return "eds";
     case Subcommand::none: break;
   }
   return "";
@@ -379,11 +380,19 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
       ->type_name("FRAMES");
   node_cmd->footer(env_footer(""));
 
+  // ---- eds
+  EdsOptions& eds = cl.eds;
+  auto* eds_cmd = add_subcommand(app, "eds", "Write the EDS (CiA 306) of an axis' CANopen node for a master's configuration tool",
+                                 cl.log_level);
+  add_machine_axis(eds_cmd, eds.config, eds.axis, "Machine file whose axis has a canopen: block (default: the built-in one)");
+  eds_cmd->add_option("--out,-o", eds.out, "EDS file to write (default: standard output)")->type_name("FILE");
+  eds_cmd->footer(env_footer(""));
+
   CLI::App* failed_in = nullptr;
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    for (CLI::App* sub : {run_cmd, check_cmd, cal_cmd, mon_cmd, rec_cmd, ev_cmd, node_cmd})
+    for (CLI::App* sub : {run_cmd, check_cmd, cal_cmd, mon_cmd, rec_cmd, ev_cmd, node_cmd, eds_cmd})
       if (sub->parsed()) failed_in = sub;
     const std::string name = e.get_name();
     if (name == "CallForHelp" || name == "CallForAllHelp") {
@@ -438,6 +447,8 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
     cl.command = Subcommand::evaluate;
   } else if (*node_cmd) {
     cl.command = Subcommand::sensor_node;
+  } else if (*eds_cmd) {
+    cl.command = Subcommand::eds;
   } else {
     cl.err = std::string(kProgram) + ": a subcommand is required\n" + usage_hint(nullptr);
     cl.exit_code = kExitUsage;

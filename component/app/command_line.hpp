@@ -11,7 +11,7 @@
 
 namespace ve::app {
 
-enum class Subcommand { none, run, check, calibrate, monitor, record, evaluate, sensor_node };
+enum class Subcommand { none, run, check, calibrate, monitor, record, evaluate, sensor_node, eds };
 
 /// Exit codes of every subcommand (docs/command-line.md).
 inline constexpr int kExitOk = 0;
@@ -35,6 +35,7 @@ struct CommandLine {
   RecordOptions record;
   EvaluateOptions evaluate;
   SensorNodeOptions sensor_node;
+  EdsOptions eds;
 };
 
 /// Parses argv (argv[0] is the program). Never throws, never prints, never exits.

@@ -22,6 +22,7 @@
 #include <spdlog/spdlog.h>
 
 #include "axis.hpp"
+#include "canopen_io.hpp"
 #include "calibration_log.hpp"
 #include "calibration_service.hpp"
 #include "command_line.hpp"
@@ -149,6 +150,9 @@ struct AxisLoop {
   std::atomic<double> position_m{0}, velocity_mps{0}, position_std_m{0}, velocity_std_mps{0};
   std::atomic<double> innovation_rms{0}, step_max_us{0};
   std::atomic<std::uint32_t> status{0};
+  // CiA 406 node of this axis (`canopen:`), fed through `canopen_state`; null without one.
+  canopen::SnapshotBox canopen_state;
+  std::unique_ptr<CanopenNodeIo> canopen;
 };
 
 void fill_diagnostics(const AxisLoop& loop, const DiagnosticsAccumulator& acc, const core::RawSample& sample,
@@ -247,8 +251,10 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
       loop.end_reason = st == drivers::ReadStatus::error ? source.last_error() : std::string();
       break;
     }
+    if (loop.canopen) loop.canopen_state.claim();
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
+    if (loop.canopen) loop.canopen_state.begin(handover_rt_ns);  // a SYNC after this instant waits for it
     const std::int64_t sample_gap_ns = last_arrival_ns != 0 ? sample.t_ns - last_sample_t_ns : 0;
     if (silent || sample_gap_ns >= kSilenceLoggedNs) {
       silent = false;
@@ -271,6 +277,16 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
       }
     }
     last_status = est.status;
+    if (loop.canopen) {  // the CAN node's thread reads it; this loop never waits for it
+      canopen::AxisSnapshot snap;
+      snap.present = true;
+      snap.t_ns = handover_rt_ns;  // the instant ve/encoder_state states as source_time_ns
+      snap.position_m = est.position_m;
+      snap.velocity_mps = est.velocity_mps;
+      snap.acceleration_mps2 = est.acceleration_mps2;
+      snap.status = est.status;
+      loop.canopen_state.publish(snap);
+    }
     if (--until_publish == 0) {  // output.publish_divider: every Nth estimate is published
       until_publish = publish_divider;
       fill_state(est, loop.setup.config, ++sequence, state);
@@ -395,6 +411,13 @@ int run_command(const RunOptions& options) {
       return 2;
     }
     use_kept_position(loop->setup);
+    if (axis.canopen.enabled) {
+      loop->canopen = std::make_unique<CanopenNodeIo>(axis, loop->canopen_state);
+      if (!loop->canopen->ok()) {
+        std::fprintf(stderr, "%s\n", loop->canopen->last_error().c_str());
+        return 2;
+      }
+    }
     loops.push_back(std::move(loop));
   }
 
@@ -457,6 +480,7 @@ int run_command(const RunOptions& options) {
       spdlog::info("axis '{}' (id {}): {} | motor {} | {}", s.config.name, s.config.id, s.source->describe(),
                    s.config.motor.name,
                    s.calibrated ? "calibration " + s.calibration.info.id : std::string("nominal table (not calibrated)"));
+      if (loop->canopen) spdlog::info("axis '{}': {}", s.config.name, loop->canopen->describe());
     }
     if (options.wait_for_subscriber_s > 0) {
       const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(options.wait_for_subscriber_s);
@@ -475,6 +499,8 @@ int run_command(const RunOptions& options) {
     for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
     Realtime realtime(machine.realtime, axis_names);
     if (!realtime.ok()) return 1;
+    for (auto& loop : loops)
+      if (loop->canopen) loop->canopen->start(machine.realtime);  // boot-up; no estimate yet (6503h position error)
     for (auto& loop : loops)
       loop->thread = std::thread([&realtime, &state_writer, &diagnostics_writer, &stopping, l = loop.get()] {
         realtime.enter_sample_thread(l->setup.config.name);
@@ -559,6 +585,10 @@ int run_command(const RunOptions& options) {
     for (auto& loop : loops) loop->setup.source->stop();
     for (auto& loop : loops) {
       if (loop->thread.joinable()) loop->thread.join();
+      if (loop->canopen) {
+        loop->canopen->stop();
+        spdlog::info("axis '{}': canopen: {}", loop->setup.config.name, loop->canopen->stats());
+      }
       if (!loop->end_reason.empty()) {
         spdlog::error("axis '{}': {}", loop->setup.config.name, loop->end_reason);
         exit_code = 1;

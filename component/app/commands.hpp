@@ -99,4 +99,13 @@ struct SensorNodeOptions {
 int sensor_node_command(const SensorNodeOptions& options);
 // ---- end sensor-node ----
 
+// ---- eds: the CANopen node's electronic data sheet ----
+struct EdsOptions {
+  std::string config;  ///< machine file; "" = the embedded simulator machine
+  std::string axis;    ///< "" = the first axis with a `canopen:` block
+  std::string out;     ///< "" = standard output
+};
+int eds_command(const EdsOptions& options);
+// ---- end eds ----
+
 }  // namespace ve::app

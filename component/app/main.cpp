@@ -38,6 +38,7 @@ int main(int argc, char** argv) {
     case ve::app::Subcommand::record: return ve::app::record_command(cl.record);
     case ve::app::Subcommand::evaluate: return ve::app::evaluate_command(cl.evaluate);
     case ve::app::Subcommand::sensor_node: return ve::app::sensor_node_command(cl.sensor_node);
+    case ve::app::Subcommand::eds: return ve::app::eds_command(cl.eds);
     case ve::app::Subcommand::none: break;
   }
   return ve::app::kExitUsage;

@@ -1188,6 +1188,7 @@ class MachineLoader {
       if (!a.valid()) continue;
       read_axis(a, cfg.axes[i]);
       check_unique(a, cfg, i);
+      check_unique_node(a, cfg, i);
     }
   }
 
@@ -1310,6 +1311,7 @@ class MachineLoader {
     }
     current_motor_ = m;  // socketcan layout cross-check (issue 6)
     read_driver(a.map("driver"), axis.driver, travel);
+    read_canopen(a, axis, travel);
     {
       Map out = a.map("output");
       out.get("counts_per_m", axis.output.counts_per_m, range(1.0, 1e12, "counts/m"));
@@ -1352,6 +1354,94 @@ class MachineLoader {
       }
     }
   }
+
+  // ---- canopen node ----
+  /// `canopen:` of an axis (CanopenConfig). Every key is declared whether or not the
+  /// block is there (the configuration reference test reads them all).
+  void read_canopen(Map& a, AxisConfig& axis, double travel) {
+    CanopenConfig& c = axis.canopen;
+    c.enabled = a.has("canopen");
+    Map m = a.map("canopen");
+    const auto interface_name = Check<std::string>([](const std::string& s) {
+      return (!s.empty() && s.size() <= 15 && s.find('/') == std::string::npos && s.find(' ') == std::string::npos)
+                 ? std::string()
+                 : "must be a network interface name of 1 to 15 characters, got '" + s + "'";
+    });
+    const auto node_id = schema::in_range<int>(1, 127);
+    if (c.enabled) {
+      m.require("interface", c.interface, interface_name);
+      m.require("node_id", c.node_id, node_id);
+    } else {
+      m.get("interface", c.interface, interface_name);
+      m.get("node_id", c.node_id, node_id);
+    }
+    m.get("bitrate_kbps", c.bitrate_kbps, Check<int>([](const int& b) {
+            for (int ok : {10, 20, 50, 125, 250, 500, 800, 1000})
+              if (b == ok) return std::string();
+            return "must be one of 10, 20, 50, 125, 250, 500, 800, 1000 (kbit/s), got " + std::to_string(b);
+          }));
+    // The position value (6004h) is 32 bits: the whole travel must fit in it.
+    m.get("measuring_step_nm", c.measuring_step_nm, Check<std::uint32_t>([travel](const std::uint32_t& n) {
+            if (n < 1 || n > 1000000) return schema::out_of_range(static_cast<double>(n), 1, 1000000, "nm");
+            if (travel > 0.0 && travel * 1e9 / n > 2147483647.0)
+              return "a travel of " + schema::compact_number(travel) + " m is more than 2^31 - 1 steps of " +
+                     std::to_string(n) + " nm (the 32-bit position value)";
+            return std::string();
+          }));
+    m.get("cyclic_timer_ms", c.cyclic_timer_ms, schema::in_range<int>(0, 65535, "ms"));
+    m.get("heartbeat_ms", c.heartbeat_ms, schema::in_range<int>(0, 65535, "ms"));
+    const bool type_ok = m.get("transmission_type", c.transmission_type, Check<int>([](const int& t) {
+            return (t >= 1 && t <= 240) || t == 254 || t == 255
+                       ? std::string()
+                       : "must be 1..240 (every n-th SYNC), 254 or 255 (cyclic, cyclic_timer_ms), got " + std::to_string(t);
+          }));
+    const Value mapping = m.value("tpdo_mapping");
+    if (mapping.present() && !mapping.is_null()) {
+      if (!mapping.is_sequence() || mapping.size() == 0 || mapping.size() > 2) {
+        mapping.error("expected a list of one or two of position, speed (e.g. [position, speed]), got " + mapping.describe());
+      } else {
+        std::vector<std::string> names;
+        for (std::size_t i = 0; i < mapping.size(); ++i) {
+          const Value item = mapping.at(i);
+          std::string name;
+          if (!item.as(name)) continue;
+          if (name != "position" && name != "speed") {
+            item.error("'" + name + "' is not one of position, speed");
+            continue;
+          }
+          if (std::find(names.begin(), names.end(), name) != names.end()) {
+            item.error("'" + name + "' is mapped twice");
+            continue;
+          }
+          names.push_back(name);
+        }
+        c.map_speed = std::find(names.begin(), names.end(), "speed") != names.end();
+        c.speed_first = !names.empty() && names.front() == "speed";
+        if (std::find(names.begin(), names.end(), "position") == names.end() && !names.empty())
+          mapping.error("must map position (6004h); speed may follow it");
+      }
+    }
+    if (c.enabled && type_ok && c.cyclic_timer_ms == 0 && (c.transmission_type == 254 || c.transmission_type == 255))
+      m.value("transmission_type")
+          .error(std::to_string(c.transmission_type) +
+                 " sends TPDO1 every cyclic_timer_ms (6200h): give cyclic_timer_ms a period > 0");
+  }
+
+  /// Two CANopen nodes on one interface must have different node ids.
+  void check_unique_node(Map& a, const MachineConfig& cfg, std::size_t i) {
+    const CanopenConfig& c = cfg.axes[i].canopen;
+    if (!c.enabled) return;
+    for (std::size_t j = 0; j < i; ++j) {
+      const CanopenConfig& o = cfg.axes[j].canopen;
+      if (!(o.enabled && o.interface == c.interface && o.node_id == c.node_id)) continue;
+      Map again = a.map("canopen");  // read once already: its other keys are not reported twice
+      again.value("node_id").error("duplicate node id " + std::to_string(c.node_id) + " on interface '" +
+                                                c.interface + "' (also axes[" + std::to_string(j) + "], axis '" +
+                                                cfg.axes[j].name + "')");
+      again.discard();
+    }
+  }
+  // ---- end canopen node ----
 
   /// Cross-check against the motor's travel; reports at the value, or at the
   /// enclosing mapping when the value is a default.

@@ -59,6 +59,21 @@ struct HomingConfig {
   std::string state_file;
 };
 
+/// `canopen:` of an axis: the axis is also a CiA 406 linear encoder node on a CAN
+/// interface (component/canopen). Absent: no CANopen node.
+struct CanopenConfig {
+  bool enabled = false;             ///< the axis has a `canopen:` block
+  std::string interface = "can0";   ///< network interface name (at most 15 characters)
+  int node_id = 1;                  ///< 1..127, unique on its interface
+  int bitrate_kbps = 1000;          ///< the bus' bit rate, for the EDS only (set with `ip link`)
+  std::uint32_t measuring_step_nm = 1000;  ///< 6005h:01 / 6501h
+  int cyclic_timer_ms = 0;          ///< 6200h; 0 = no cyclic TPDO
+  int transmission_type = 254;      ///< 1800h:02: 1..240 every n-th SYNC, 254/255 cyclic
+  int heartbeat_ms = 100;           ///< 1017h; 0 = none
+  bool map_speed = false;           ///< TPDO1 maps 6030h:01 after 6004h
+  bool speed_first = false;         ///< ... before it
+};
+
 struct AxisConfig {
   std::string name;         ///< e.g. "x"; at most 15 characters
   std::uint32_t id = 0;     ///< DDS instance key; unique per machine
@@ -68,6 +83,7 @@ struct AxisConfig {
   std::string calibration_file;  ///< resolved path; "" = nominal table, not calibrated
   OutputConfig output;
   HomingConfig homing;
+  CanopenConfig canopen;
 };
 
 struct DdsConfig {

@@ -1,0 +1,21 @@
+# CiA 406 (CANopen linear encoder) node: component/canopen, docs/canopen.md.
+# The protocol's unit tests (tests/unit/canopen_*_test.cpp) are in ve_unit_tests and
+# need the node's library; the node on a real kernel CAN stack is tested in the
+# SocketCAN VM by ve_canopen_vm_tests (CanopenVm.GuestSuite boots the VM and runs the
+# CanopenGuest.* tests of the same binary inside it, against a test master of its own).
+target_link_libraries(ve_unit_tests PRIVATE ve_canopen)
+
+add_executable(ve_canopen_vm_tests vm/canopen_vm_test.cpp)
+target_link_libraries(ve_canopen_vm_tests PRIVATE ve_app GTest::gtest GTest::gtest_main)
+target_compile_definitions(ve_canopen_vm_tests PRIVATE
+  VE_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
+  VE_BINARY="$<TARGET_FILE:virtual-encoder>"
+  VE_VM_CACHE="${CMAKE_BINARY_DIR}/vm")
+add_dependencies(ve_canopen_vm_tests virtual-encoder)
+gtest_discover_tests(ve_canopen_vm_tests TEST_FILTER "CanopenVm.*" DISCOVERY_TIMEOUT 60
+  PROPERTIES LABELS "vm;integration" TIMEOUT 400 RUN_SERIAL TRUE)
+
+# The node's share of the SYNC-to-TPDO delay (a benchmark, not a test).
+if(TARGET bench_canopen)
+  target_link_libraries(bench_canopen PRIVATE ve_canopen)
+endif()
