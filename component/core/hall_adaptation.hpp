@@ -211,7 +211,7 @@ class HallAdaptation {
   double pdd(int i) const { return p_[2 * i + 1][2 * i + 1]; }
   /// The joint update runs on every kJointEvery-th sample that learns (its cost
   /// grows with the square of the sensors); the samples between add their share.
-  static constexpr int kJointEvery = 8;
+  static constexpr int kJointEvery = 4;
   static constexpr double kJointLeastShare = 1e-3;  ///< the least share a joint update takes
   static constexpr double kJointFromK = 1.0;        ///< joint learning from this far off calibration [K]
   bool joint_ = false;
