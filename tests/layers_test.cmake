@@ -1,12 +1,14 @@
 # The layers of the source tree point one way: component/core includes only core;
 # drivers/ includes core and drivers, never config or app; component/config includes
-# core, drivers and config, never app; component/app may include all of them.
+# core, drivers and config, never app; component/canopen (the CANopen protocol) includes
+# core and itself only; component/app may include all of them.
 # Fails naming every include that points the wrong way (file:line: the include).
 # Usage: cmake -DSOURCE=<repository root> -P layers_test.cmake
 set(rules
   "component/core|core"
   "drivers|core,sim,socketcan,replay"
-  "component/config|core,config,sim,socketcan,replay")
+  "component/config|core,config,sim,socketcan,replay"
+  "component/canopen|core,canopen")
 set(problems "")
 set(checked 0)
 foreach(rule ${rules})
