@@ -16,6 +16,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include "socketcan/can_receive.hpp"
+
 namespace ve::app {
 
 namespace {
@@ -177,22 +179,9 @@ void CanopenNodeIo::loop() {
       // Every frame waiting, each with its kernel reception time stamp.
       for (;;) {
         can_frame cf{};
-        iovec iov{&cf, sizeof cf};
-        alignas(cmsghdr) char control[CMSG_SPACE(sizeof(timespec)) + 64];
-        msghdr msg{};
-        msg.msg_iov = &iov;
-        msg.msg_iovlen = 1;
-        msg.msg_control = control;
-        msg.msg_controllen = sizeof control;
-        const ssize_t got = ::recvmsg(fd_, &msg, MSG_DONTWAIT);
-        if (got < static_cast<ssize_t>(sizeof cf)) break;
-        std::int64_t rx_rt = 0;
-        for (cmsghdr* c = CMSG_FIRSTHDR(&msg); c; c = CMSG_NXTHDR(&msg, c))
-          if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SO_TIMESTAMPNS) {
-            timespec ts{};
-            std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
-            rx_rt = static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
-          }
+        const socketcan::CanReceived rx = socketcan::receive_can_frame(fd_, &cf, sizeof cf);
+        if (rx.bytes < static_cast<ssize_t>(sizeof cf)) break;
+        std::int64_t rx_rt = rx.rx_realtime_ns;
         if (rx_rt == 0) rx_rt = now_ns(CLOCK_REALTIME);
         if ((cf.can_id & CAN_SFF_MASK) == 0x080) {
           // A SYNC received while the estimate of an earlier instant is still being

@@ -1,5 +1,7 @@
 #include "socketcan/socketcan_source.hpp"
 
+#include "socketcan/can_receive.hpp"
+
 #include <linux/can.h>
 #include <linux/can/error.h>
 #include <linux/can/raw.h>
@@ -198,36 +200,22 @@ bool SocketCanSource::receive_some() {
   // Drain what is queued; the socket is non-blocking.
   for (int n = 0; n < 256; ++n) {
     canfd_frame frame{};
-    iovec iov{&frame, sizeof frame};
-    alignas(cmsghdr) char control[CMSG_SPACE(sizeof(timespec)) + CMSG_SPACE(sizeof(std::uint32_t)) + 64];
-    msghdr msg{};
-    msg.msg_iov = &iov;
-    msg.msg_iovlen = 1;
-    msg.msg_control = control;
-    msg.msg_controllen = sizeof control;
-    const ssize_t got = ::recvmsg(fd_, &msg, MSG_DONTWAIT);
+    const CanReceived rx = receive_can_frame(fd_, &frame, sizeof frame);
+    const ssize_t got = rx.bytes;
     if (got < 0) {
-      const int e = errno;
+      const int e = rx.error;
       if (e == EAGAIN || e == EWOULDBLOCK || e == EINTR) return true;
       // ENETDOWN: the interface went down; ENODEV: it was removed. Reopen later.
       c_.socket_errors.fetch_add(1, std::memory_order_relaxed);
       set_error(errno_text(("socketcan: receive on '" + opt_.interface + "'").c_str(), e));
       return false;
     }
-    std::int64_t rx_ns = 0;
-    for (cmsghdr* c = CMSG_FIRSTHDR(&msg); c; c = CMSG_NXTHDR(&msg, c)) {
-      if (c->cmsg_level != SOL_SOCKET) continue;
-      if (c->cmsg_type == SO_TIMESTAMPNS) {
-        timespec ts;
-        std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
-        rx_ns = static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
-      } else if (c->cmsg_type == SO_RXQ_OVFL) {
-        std::uint32_t drops;
-        std::memcpy(&drops, CMSG_DATA(c), sizeof drops);
-        if (drops > last_drop_count_) c_.kernel_drops.fetch_add(drops - last_drop_count_, std::memory_order_relaxed);
-        last_drop_count_ = drops;
-      }
+    if (rx.has_drops) {
+      if (rx.drops > last_drop_count_)
+        c_.kernel_drops.fetch_add(rx.drops - last_drop_count_, std::memory_order_relaxed);
+      last_drop_count_ = rx.drops;
     }
+    std::int64_t rx_ns = rx.rx_realtime_ns;
     if (rx_ns == 0) rx_ns = realtime_ns();
     if (got != static_cast<ssize_t>(CANFD_MTU) && got != static_cast<ssize_t>(CAN_MTU)) {
       // Neither a classic nor an FD frame: counted with the wrong-format frames.

@@ -5,15 +5,7 @@
 # CanopenGuest.* tests of the same binary inside it, against a test master of its own).
 target_link_libraries(ve_unit_tests PRIVATE ve_canopen)
 
-add_executable(ve_canopen_vm_tests vm/canopen_vm_test.cpp)
-target_link_libraries(ve_canopen_vm_tests PRIVATE ve_app GTest::gtest GTest::gtest_main)
-target_compile_definitions(ve_canopen_vm_tests PRIVATE
-  VE_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
-  VE_BINARY="$<TARGET_FILE:virtual-encoder>"
-  VE_VM_CACHE="${CMAKE_BINARY_DIR}/vm")
-add_dependencies(ve_canopen_vm_tests virtual-encoder)
-gtest_discover_tests(ve_canopen_vm_tests TEST_FILTER "CanopenVm.*" DISCOVERY_TIMEOUT 60
-  PROPERTIES LABELS "vm;integration" TIMEOUT 400 RUN_SERIAL TRUE)
+ve_vm_test(ve_canopen_vm_tests vm/canopen_vm_test.cpp "CanopenVm.*" 400)
 
 # The node's share of the SYNC-to-TPDO delay (a benchmark, not a test).
 if(TARGET bench_canopen)

@@ -10,6 +10,7 @@
 #include <sstream>
 #include <thread>
 
+#include "../canopen_sdo_result.hpp"
 #include "canopen/node.hpp"
 #include "canopen/snapshot.hpp"
 #include "core/status.hpp"
@@ -90,17 +91,7 @@ struct Bench {
   void nmt(std::uint8_t cs, std::uint8_t node = kId) { send(make(0x000, {cs, node})); }
 
   // ---- a minimal SDO client (CiA 301 7.2.4) ----
-  struct Result {
-    bool ok = false;
-    std::uint32_t abort = 0;
-    std::vector<std::uint8_t> data;
-    std::uint32_t u32() const {
-      std::uint32_t v = 0;
-      for (std::size_t i = 0; i < data.size() && i < 4; ++i) v |= static_cast<std::uint32_t>(data[i]) << (8 * i);
-      return v;
-    }
-    std::string text() const { return std::string(data.begin(), data.end()); }
-  };
+  using Result = ve::test::SdoResult;
   Frame request(std::uint8_t cmd, std::uint16_t index, std::uint8_t sub, std::uint32_t payload = 0) {
     return make(0x600 + kId, {cmd, static_cast<std::uint8_t>(index), static_cast<std::uint8_t>(index >> 8), sub,
                               static_cast<std::uint8_t>(payload), static_cast<std::uint8_t>(payload >> 8),

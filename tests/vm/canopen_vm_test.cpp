@@ -35,28 +35,25 @@
 #include <thread>
 #include <vector>
 
+#include "../canopen_sdo_result.hpp"
 #include "app/dds_io.hpp"
+#include "socketcan/can_receive.hpp"
 #include "../integration/process.hpp"
 #include "../integration/temp_dir.hpp"
 #include "../integration/test_domain.hpp"
+#include "guest_suite.hpp"
 
 using namespace ve;
 
 namespace {
 
+using ve::test::in_vm;
+using ve::test::slurp;
+
 const std::string kSrc = VE_SOURCE_DIR;
 const std::string kBin = VE_BINARY;
 constexpr int kNode = 5;
 constexpr double kStepM = 1e-6;  // measuring_step_nm: 1000
-
-bool in_vm() { return std::getenv("VE_IN_VM") != nullptr; }
-
-std::string slurp(const std::string& path) {
-  std::ifstream f(path);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 std::int64_t now_rt() {
   timespec ts{};
@@ -147,17 +144,7 @@ class TestMaster {
   }
 
   // ---- SDO client (CiA 301), expedited and segmented upload, expedited download ----
-  struct Sdo {
-    bool ok = false;
-    std::uint32_t abort = 0;  ///< abort code, 0 if none
-    std::vector<std::uint8_t> data;
-    std::uint32_t u32() const {
-      std::uint32_t v = 0;
-      for (std::size_t i = 0; i < data.size() && i < 4; ++i) v |= static_cast<std::uint32_t>(data[i]) << (8 * i);
-      return v;
-    }
-    std::string text() const { return std::string(data.begin(), data.end()); }
-  };
+  using Sdo = ve::test::SdoResult;
   Sdo exchange(const std::vector<std::uint8_t>& req, can_frame& reply) {
     Sdo r;
     const std::size_t from = count();
@@ -214,26 +201,10 @@ class TestMaster {
       pollfd p{fd_, POLLIN, 0};
       if (::poll(&p, 1, 20) <= 0) continue;
       Rx rx;
-      iovec iov{&rx.f, sizeof rx.f};
-      alignas(cmsghdr) char control[CMSG_SPACE(sizeof(timespec)) + CMSG_SPACE(sizeof(std::uint32_t)) + 64];
-      msghdr msg{};
-      msg.msg_iov = &iov;
-      msg.msg_iovlen = 1;
-      msg.msg_control = control;
-      msg.msg_controllen = sizeof control;
-      if (::recvmsg(fd_, &msg, MSG_DONTWAIT) < static_cast<ssize_t>(sizeof rx.f)) continue;
-      for (cmsghdr* c = CMSG_FIRSTHDR(&msg); c; c = CMSG_NXTHDR(&msg, c)) {
-        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SO_TIMESTAMPNS) {
-          timespec ts{};
-          std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
-          rx.t_ns = static_cast<std::int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
-        }
-        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SO_RXQ_OVFL) {
-          std::uint32_t d = 0;
-          std::memcpy(&d, CMSG_DATA(c), sizeof d);
-          dropped_.store(d);
-        }
-      }
+      const socketcan::CanReceived got = socketcan::receive_can_frame(fd_, &rx.f, sizeof rx.f);
+      if (got.bytes < static_cast<ssize_t>(sizeof rx.f)) continue;
+      rx.t_ns = got.rx_realtime_ns;
+      if (got.has_drops) dropped_.store(got.drops);
       std::lock_guard<std::mutex> lock(m_);
       frames_.push_back(rx);
     }
@@ -269,42 +240,7 @@ double percentile(std::vector<double> v, double p) {
 
 TEST(CanopenVm, GuestSuite) {
   if (in_vm()) GTEST_SKIP() << "this is the guest";
-  const std::string cache = VE_VM_CACHE;
-  std::filesystem::create_directories(cache);
-  const ve::test::TempDir run_dir("ve_canopen_vm");
-  ASSERT_FALSE(run_dir.path.empty());
-  const std::string out = run_dir.path.string();
-  ve::test::ChildProcess prepare({"/usr/bin/flock", cache + ".lock", "/bin/sh", kSrc + "/tests/vm/prepare.sh", cache},
-                                 out + "/prepare.log");
-  const int p = prepare.wait_exit(std::chrono::seconds(280));
-  if (p == 77) GTEST_SKIP() << "SocketCAN VM unavailable: " << slurp(out + "/prepare.log");
-  ASSERT_EQ(p, 0) << slurp(out + "/prepare.log");
-
-  char exe[4096] = {};
-  ASSERT_GT(readlink("/proc/self/exe", exe, sizeof exe - 1), 0);
-  const std::string script = out + "/guest.sh";
-  {
-    std::ofstream s(script);
-    s << "#!/bin/sh\n"
-      << "export VE_IN_VM=1 PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/tmp\n"
-      << "export VE_TEST_DDS_DOMAINS_HELD=" << ve::test::dds_domain(0) << "\n"
-      << "cd " << out << "\n"
-      << exe << " --gtest_filter='CanopenGuest.*' --gtest_color=no > " << out << "/guest.log 2>&1\n"
-      << "echo $? > " << out << "/guest.rc\n"
-      << "sync\n";
-  }
-  const auto t0 = std::chrono::steady_clock::now();
-  ve::test::ChildProcess vm({"/bin/sh", kSrc + "/tests/vm/run_in_vm.sh", cache, script, "330"}, out + "/run.log");
-  const int r = vm.wait_exit(std::chrono::seconds(360));
-  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (r == 77) GTEST_SKIP() << slurp(out + "/run.log");
-  const std::string log = slurp(out + "/guest.log");
-  std::printf("---- guest (VM %.1f s) ----\n%s---- end guest ----\n", secs, log.c_str());
-  ASSERT_EQ(r, 0) << slurp(out + "/run.log") << "\nconsole:\n" << slurp(out + "/console.log");
-  const std::string rc = slurp(out + "/guest.rc");
-  ASSERT_FALSE(rc.empty()) << "the guest wrote no result; console:\n" << slurp(out + "/console.log");
-  EXPECT_EQ(std::atoi(rc.c_str()), 0) << "guest tests failed (log above)";
-  EXPECT_NE(log.find("[  PASSED  ]"), std::string::npos);
+  ve::test::run_guest_suite("ve_canopen_vm", "CanopenGuest.*", std::to_string(ve::test::dds_domain(0)), 330);
 }
 
 // ---------------------------------------------------------------------------

@@ -36,6 +36,7 @@
 #include "../integration/process.hpp"
 #include "../integration/temp_dir.hpp"
 #include "../integration/test_domain.hpp"
+#include "guest_suite.hpp"
 
 extern char** environ;
 
@@ -44,17 +45,11 @@ using socketcan::SocketCanSource;
 
 namespace {
 
+using ve::test::in_vm;
+using ve::test::slurp;
+
 const std::string kSrc = VE_SOURCE_DIR;
 const std::string kBin = VE_BINARY;
-
-bool in_vm() { return std::getenv("VE_IN_VM") != nullptr; }
-
-std::string slurp(const std::string& path) {
-  std::ifstream f(path);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 int sh(const std::string& cmd) {
   const int r = std::system(cmd.c_str());
@@ -106,49 +101,8 @@ constexpr double kLsb = 5.0 / 4095.0;
 
 TEST(SocketCanVm, GuestSuite) {
   if (in_vm()) GTEST_SKIP() << "this is the guest";
-  const std::string cache = VE_VM_CACHE;
-  std::filesystem::create_directories(cache);
-  // What this run writes is its own (two test runs of one build tree may boot a VM
-  // each at the same time): a fresh directory, visible at the same path in the guest.
-  const ve::test::TempDir run_dir("ve_vm_guest");
-  ASSERT_FALSE(run_dir.path.empty());
-  const std::string out = run_dir.path.string();
-  // The VM and what prepares it run as children of this test (integration/process.hpp):
-  // they end with it, also when it fails or is killed. The cache is prepared by one
-  // run at a time (flock).
-  ve::test::ChildProcess prepare({"/usr/bin/flock", cache + ".lock", "/bin/sh", kSrc + "/tests/vm/prepare.sh", cache},
-                                 out + "/prepare.log");
-  const int p = prepare.wait_exit(std::chrono::seconds(280));
-  if (p == 77) GTEST_SKIP() << "SocketCAN VM unavailable: " << slurp(out + "/prepare.log");
-  ASSERT_EQ(p, 0) << slurp(out + "/prepare.log");
-
-  char exe[4096] = {};
-  ASSERT_GT(readlink("/proc/self/exe", exe, sizeof exe - 1), 0);
-  const std::string script = out + "/guest.sh";
-  {
-    std::ofstream s(script);
-    s << "#!/bin/sh\n"
-      << "export VE_IN_VM=1 PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/tmp\n"
-      // The guest's DDS domains: held by this process (the guest's network is its own
-      // loopback, but no test uses a domain it has not reserved).
-      << "export VE_TEST_DDS_DOMAINS_HELD=" << ve::test::dds_domain(0) << "," << ve::test::dds_domain(1) << "\n"
-      << "cd " << out << "\n"
-      << exe << " --gtest_filter='SocketCanGuest.*' --gtest_color=no > " << out << "/guest.log 2>&1\n"
-      << "echo $? > " << out << "/guest.rc\n"
-      << "sync\n";
-  }
-  const auto t0 = std::chrono::steady_clock::now();
-  ve::test::ChildProcess vm({"/bin/sh", kSrc + "/tests/vm/run_in_vm.sh", cache, script, "200"}, out + "/run.log");
-  const int r = vm.wait_exit(std::chrono::seconds(230));
-  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (r == 77) GTEST_SKIP() << slurp(out + "/run.log");
-  const std::string log = slurp(out + "/guest.log");
-  std::printf("---- guest (VM %.1f s) ----\n%s---- end guest ----\n", secs, log.c_str());
-  ASSERT_EQ(r, 0) << slurp(out + "/run.log") << "\nconsole:\n" << slurp(out + "/console.log");
-  const std::string rc = slurp(out + "/guest.rc");
-  ASSERT_FALSE(rc.empty()) << "the guest wrote no result; console:\n" << slurp(out + "/console.log");
-  EXPECT_EQ(std::atoi(rc.c_str()), 0) << "guest tests failed (log above)";
-  EXPECT_NE(log.find("[  PASSED  ]"), std::string::npos);
+  ve::test::run_guest_suite("ve_vm_guest", "SocketCanGuest.*",
+                            std::to_string(ve::test::dds_domain(0)) + "," + std::to_string(ve::test::dds_domain(1)), 200);
 }
 
 // ---------------------------------------------------------------------------
