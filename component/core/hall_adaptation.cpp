@@ -141,9 +141,8 @@ double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,
     if (!(mask >> i & 1u)) continue;
     const auto k = static_cast<std::size_t>(i);
     const double ui = table_v[k] - mid_v_;
-    const double own_prior = ui * ui * p0_gg_ + p0_dd_;
-    prior += c[k] * c[k] * own_prior;
-    own_beyond += c[k] * c[k] * std::max(0.0, reading_variance(i, table_v[k]) - own_prior);
+    prior += c[k] * c[k] * (ui * ui * p0_gg_ + p0_dd_);
+    own_beyond += c[k] * c[k] * drift_variance(i, table_v[k]);
     if (!joint_) {
       total += c[k] * c[k] * reading_variance(i, table_v[k]);
       continue;

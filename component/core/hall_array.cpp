@@ -140,7 +140,8 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // The position moves by sum_i g_i dy_i for reading errors dy_i, g the position
   // row of the normal equations' inverse times w_i (jx_i, u_i).
   double var_x = 1.0 / hxx;
-  double gain_sq = qxx / (hxx * hxx);
+  double gain_sq = qxx / (hxx * hxx);  // sum of the squared sensitivities c_i below
+  double gain_prior_share = 0.0;       // what the common gain's prior adds to the position's variance
   std::array<double, kMaxHalls> c{};  // the position's sensitivity to each reading
   for (int i = 0; i < sensors_; ++i) c[static_cast<std::size_t>(i)] = wjx[static_cast<std::size_t>(i)] / hxx;
   if (with_gain) {
@@ -154,6 +155,8 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
     }
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
+    const double ce = hxe / det;  // the position's sensitivity to the common gain's prior
+    gain_prior_share = ce * ce * info_c;
   }
   double drift = 0.0;
   if (adaptation) {
@@ -161,18 +164,8 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
     // sensors' joint uncertainty leaves in this combination of them: the drift learnt
     // so far is correlated between the sensors (the part the array cannot tell from a
     // shift is held in common).
-    double noise = 0.0;
-    for (int i = 0; i < sensors_; ++i) {
-      const auto k = static_cast<std::size_t>(i);
-      if (used_mask >> i & 1u) noise += c[k] * c[k] * noise_var;
-    }
-    if (with_gain) {
-      const double det = hxx * hee - hxe * hxe;
-      const double ce = hxe / det;  // the position's sensitivity to the common gain's prior
-      noise += ce * ce * info_c;
-    }
     const double joint = adaptation->combined_variance(c, tv, used_mask, drift);
-    var_x = noise + joint;
+    var_x = noise_var * gain_sq + gain_prior_share + joint;
   }
   fix.quantisation_m2 = quantisation_v2_ * gain_sq;
   fix.drift_m2 = std::max(0.0, drift);

@@ -34,7 +34,8 @@ struct HallFix {
   /// dithers only partly (variance_m2 counts it as white noise) [m^2].
   double quantisation_m2 = 0.0;
   /// Likewise what the adaptation is still unsure of in the sensors' gains and
-  /// offsets beyond its start-up prior (HallAdaptation::drift_variance): it repeats
+  /// offsets beyond its start-up prior (HallAdaptation::combined_variance, with the
+  /// sensors' correlations once they are learnt jointly): it repeats
   /// until the carriage has moved a good part of a magnet period [m^2].
   double drift_m2 = 0.0;
 };
