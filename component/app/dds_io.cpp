@@ -27,6 +27,9 @@
 #include <fastdds/dds/topic/TypeSupport.hpp>
 #include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
 #include <fastdds/dds/log/Log.hpp>
+#include <fastrtps/types/DynamicDataFactory.h>
+#include <fastrtps/types/DynamicTypeBuilderFactory.h>
+#include <fastrtps/types/TypeObjectFactory.h>
 #include <spdlog/spdlog.h>
 
 #include "VirtualEncoderPubSubTypes.h"
@@ -379,6 +382,16 @@ bool env_flag(const char* name) {
 bool DdsOptions::type_information_from_env() { return env_flag("VE_DDS_TYPE_INFORMATION"); }
 bool DdsOptions::type_object_from_env() { return env_flag("VE_DDS_TYPE_OBJECT"); }
 
+void prime_type_registries() {
+  static std::once_flag primed;
+  std::call_once(primed, [] {
+    eprosima::fastrtps::types::TypeObjectFactory::get_instance();
+    eprosima::fastrtps::types::DynamicTypeBuilderFactory::get_instance();
+    eprosima::fastrtps::types::DynamicDataFactory::get_instance();
+    registerVirtualEncoderTypes();
+  });
+}
+
 std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::string& error) {
   route_fastdds_log();  // before the factory, which may already parse a profiles file
   auto* factory = fdds::DomainParticipantFactory::get_instance();
@@ -389,13 +402,18 @@ std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::s
     error = "cannot load DDS profiles file '" + options.profiles_file + "'";
     return nullptr;
   }
-  // Type information for generic DDS tools (TypeObject / TypeLookup), only when asked
-  // for (see DdsOptions::type_object). Registered once per process: the registry's
-  // writes are not safe against a receive thread reading it.
-  if (options.type_object || options.type_information) {
-    static std::once_flag registered;
-    std::call_once(registered, [] { registerVirtualEncoderTypes(); });
-  }
+  // Fast DDS 2.9's type registries are filled here, on this thread, before any participant
+  // (and so any receive thread) exists. A peer built with fastddsgen's defaults (a drive
+  // controller, tests/tools/bare_reader.cpp) announces a complete TypeObject, and this
+  // participant then builds a DynamicType from it on its receive threads
+  // (PDP::check_and_notify_type_discovery). There, TypeObjectFactory,
+  // DynamicTypeBuilderFactory and DynamicDataFactory are created lazily without a lock,
+  // and the generated code fills the registry on the first construction of one of our
+  // samples, with writes outside the registry's lock: either, concurrent with a receive
+  // thread, crashed `run` (seen under AddressSanitizer: a SEGV in
+  // DynamicType::get_all_members on a receive thread of a `run` restarted among such
+  // readers). Afterwards every later registration finds its entries and stores nothing new.
+  prime_type_registries();
 
   std::unique_ptr<DdsContext> ctx(new DdsContext());
   fdds::DomainParticipantQos pq;

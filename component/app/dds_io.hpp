@@ -86,11 +86,12 @@ struct DdsOptions {
   /// Announce the types' complete TypeObjects in discovery (for generic tools that
   /// build a type from it). Off by default: every Fast DDS 2.9 participant that
   /// discovers an endpoint carrying one builds a DynamicType from it on its receive
-  /// threads, in a type registry that is not thread-safe (add_type_identifier writes
-  /// its maps without the lock others read them under). Two endpoints discovered at
-  /// once then crash the receiver, ours or a drive controller's (seen: a SEGV in
-  /// TypeObjectFactory::get_key_from_hash under AddressSanitizer). Default from the
-  /// environment: VE_DDS_TYPE_OBJECT=1 turns it on.
+  /// threads, in type registries that are not thread-safe (created lazily without a
+  /// lock; add_type_identifier writes its maps without the lock others read them
+  /// under). A receiver whose registries are not filled before its participant exists
+  /// can crash (seen: a SEGV in TypeObjectFactory::get_key_from_hash under
+  /// AddressSanitizer); ours are (prime_type_registries), a drive controller's may not
+  /// be. Default from the environment: VE_DDS_TYPE_OBJECT=1 turns it on.
   bool type_object = type_object_from_env();
   static bool type_object_from_env();
   /// Built-in QoS only (no participant profile): Fast DDS's default transports
@@ -100,6 +101,12 @@ struct DdsOptions {
   /// for a consumer with Fast DDS's defaults.
   bool receive_over_shm = false;
 };
+
+/// Creates Fast DDS 2.9's type registries and fills them with the product's types, once per
+/// process. DdsContext::create calls it before its participant exists: a peer's announced
+/// TypeObject is built into these registries on the participant's receive threads, and
+/// neither their lazy creation nor their first filling is safe against that.
+void prime_type_registries();
 
 /// Owns the participant and the topics. Deleting it deletes every entity it
 /// made, in order; keep it out of static storage.

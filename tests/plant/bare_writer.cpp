@@ -30,8 +30,12 @@
 #include <fastdds/dds/publisher/qos/DataWriterQos.hpp>
 #include <fastdds/dds/topic/Topic.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
+#include <fastrtps/types/DynamicDataFactory.h>
+#include <fastrtps/types/DynamicTypeBuilderFactory.h>
+#include <fastrtps/types/TypeObjectFactory.h>
 
 #include "VirtualEncoderPubSubTypes.h"
+#include "VirtualEncoderTypeObject.h"
 #include "pacing.hpp"  // drivers/pacing.hpp
 
 namespace fdds = eprosima::fastdds::dds;
@@ -53,6 +57,13 @@ int main(int argc, char** argv) {
     return 2;
   }
   const int domain = std::atoi(argv[1]);
+  // Fast DDS 2.9's type registries created and filled before the participant exists: a
+  // discovered endpoint's TypeObject is built into them on the receive threads
+  // (docs/dds-integration.md, "Type registries").
+  eprosima::fastrtps::types::TypeObjectFactory::get_instance();
+  eprosima::fastrtps::types::DynamicTypeBuilderFactory::get_instance();
+  eprosima::fastrtps::types::DynamicDataFactory::get_instance();
+  registerVirtualEncoderTypes();
   const int axes = std::atoi(argv[2]);
   double rate = 4000.0, duration = 0.0;
   for (int i = 3; i + 1 < argc; i += 2) {
