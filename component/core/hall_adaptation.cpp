@@ -27,8 +27,8 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   p0_gg_ = f.hall_gain_initial_std * f.hall_gain_initial_std;
   p0_dd_ = f.hall_offset_initial_std_v * f.hall_offset_initial_std_v;
   for (int i = 0; i < sensors_; ++i) {
-    pgg(i) = p0_gg_;
-    pdd(i) = p0_dd_;
+    pgg(i) = look_gg_[static_cast<std::size_t>(i)] = p0_gg_;
+    pdd(i) = look_dd_[static_cast<std::size_t>(i)] = p0_dd_;
   }
   q_common_ = f.hall_common_gain_random_walk_per_sqrt_s * f.hall_common_gain_random_walk_per_sqrt_s * ts_s;
   p0_common_ = f.hall_common_gain_initial_std * f.hall_common_gain_initial_std;
@@ -50,10 +50,19 @@ void HallAdaptation::widen_for_rise(double d_k) {
   // Once the motor is a kelvin or more from its calibration, the sensors' drift
   // outgrows the prior and is learnt jointly (see joint_update).
   widened_k2_ += d2;
-  if (widened_k2_ >= kJointFromK * kJointFromK) joint_ = true;
+  if (!joint_ && widened_k2_ >= kJointFromK * kJointFromK) {
+    joint_ = true;
+    for (int i = 0; i < sensors_; ++i) {
+      look_gg_[static_cast<std::size_t>(i)] = pgg(i);
+      look_dd_[static_cast<std::size_t>(i)] = pdd(i);
+    }
+  }
   for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
     pgg(i) = std::min(pgg(i) + gain_tc_std_ * gain_tc_std_ * d2, limit2);
     pdd(i) += offset_tc_std_v_ * offset_tc_std_v_ * d2;
+    look_gg_[k] = std::min(look_gg_[k] + gain_tc_std_ * gain_tc_std_ * d2, limit2);
+    look_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d2;
   }
 }
 
@@ -136,7 +145,7 @@ double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,
                                          double& beyond_prior) const {
   beyond_prior = 0.0;
   if (!enabled_) return 0.0;
-  double total = 0.0, prior = 0.0, own_beyond = 0.0;
+  double total = 0.0, prior = 0.0, own_beyond = 0.0, looks = 0.0;
   for (int i = 0; i < sensors_; ++i) {
     if (!(mask >> i & 1u)) continue;
     const auto k = static_cast<std::size_t>(i);
@@ -147,6 +156,7 @@ double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,
       total += c[k] * c[k] * reading_variance(i, table_v[k]);
       continue;
     }
+    looks += c[k] * c[k] * (ui * ui * look_gg_[k] + look_dd_[k]);
     for (int j = 0; j < sensors_; ++j) {
       if (!(mask >> j & 1u)) continue;
       const auto l = static_cast<std::size_t>(j);
@@ -157,7 +167,7 @@ double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,
   }
   // Sensor by sensor (no correlations) what each holds beyond its prior; jointly,
   // what the combination holds beyond the prior's share.
-  beyond_prior = joint_ ? std::max(0.0, total - prior) : own_beyond;
+  beyond_prior = joint_ ? std::max(0.0, std::max(total, looks) - prior) : own_beyond;
   return std::max(0.0, total);
 }
 
@@ -196,6 +206,9 @@ void HallAdaptation::update(const RawSample& raw, const HallTable& table, double
     // long (at standstill), no more unsure than at start-up.
     if (pgg(i) < p0_gg_) pgg(i) = std::min(pgg(i) + q_gain_, p0_gg_);
     if (pdd(i) < p0_dd_) pdd(i) = std::min(pdd(i) + q_offset_, p0_dd_);
+    const auto k = static_cast<std::size_t>(i);
+    if (look_gg_[k] < p0_gg_) look_gg_[k] = std::min(look_gg_[k] + q_gain_, p0_gg_);
+    if (look_dd_[k] < p0_dd_) look_dd_[k] = std::min(look_dd_[k] + q_offset_, p0_dd_);
   }
   // Residuals of every usable sensor at the predicted position; when the sensors
   // together place the carriage away from it (the drift not learnt yet, or the
@@ -267,6 +280,8 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
     if (reopen_threshold_ > 0.0 && (c.up > reopen_threshold_ || c.down > reopen_threshold_)) {
       pgg(i) += reopen_gain_var_;
       pdd(i) += reopen_offset_var_;
+      look_gg_[k] += reopen_gain_var_;
+      look_dd_[k] += reopen_offset_var_;
       c = Cusum{};
       ++reopenings_;
       continue;  // the next sample learns with the wider covariance
@@ -366,6 +381,16 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
   }
   for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
   p_[e][e] = 0.0;
+  // The looks: the table's error once per kModelShareOfPitch of travel, the noise of
+  // every sample in between.
+  const double model_share = std::min(1.0, share * kNewPlaceShareOfPitch / kModelShareOfPitch);
+  const double look_info = 1.0 / (model_var_v2_ / model_share + noise_var_v2_ / share);
+  for (int i = 0; i < sensors_; ++i) {
+    if (!(learn_mask >> i & 1u)) continue;
+    const auto k = static_cast<std::size_t>(i);
+    look_gg_[k] = 1.0 / (1.0 / look_gg_[k] + u[k] * u[k] * look_info);
+    look_dd_[k] = 1.0 / (1.0 / look_dd_[k] + look_info);
+  }
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
     pgg(i) = std::max(pgg(i), 1e-14);

@@ -49,6 +49,9 @@ namespace ve::core {
 
 class HallAdaptation {
  public:
+  /// A sample counts as a new place once the carriage has moved this share of a
+  /// magnet period since the last one (the `share` the updates take).
+  static constexpr double kNewPlaceShareOfPitch = 1.0 / 200.0;
   HallAdaptation(const MotorConfig& motor, double ts_s);
 
   /// The readings corrected to the calibration's conditions: out = in with each
@@ -134,6 +137,9 @@ class HallAdaptation {
   /// Whether the sensors' gains and offsets are learnt jointly (the motor was found
   /// a kelvin or more from its calibration temperature) or sensor by sensor.
   bool joint() const { return joint_; }
+  /// Sum of the squared temperature changes the sensors' covariance was widened for
+  /// so far [K^2]: it grows with every widening.
+  double widened_k2() const { return widened_k2_; }
   /// Sensor i's own gain change (on top of the common one), and its total change.
   double gain(int i) const { return gamma_[static_cast<std::size_t>(i)]; }
   double total_gain(int i) const { return (1.0 + common_gain_) * (1.0 + gain(i)) - 1.0; }
@@ -213,6 +219,15 @@ class HallAdaptation {
   /// grows with the square of the sensors); the samples between add their share.
   static constexpr int kJointEvery = 4;
   static constexpr double kJointLeastShare = 1e-3;  ///< the least share a joint update takes
+  // The least drift the published sigma may hold (combined_variance): the joint update
+  // counts a new place every kNewPlaceShareOfPitch, which is right for the readings'
+  // noise, but the table's own error (model_var_v2_) repeats until the carriage has
+  // moved a good part of a period on. Each sensor's gain and offset variance as
+  // independent looks of that error would leave them, one per kModelShareOfPitch of
+  // travel (no correlations; the random walk, widening and re-opening as in p_): the
+  // published drift is never below what these allow.
+  static constexpr double kModelShareOfPitch = 0.25;
+  std::array<double, kMaxHalls> look_gg_{}, look_dd_{};
   static constexpr double kJointFromK = 1.0;        ///< joint learning from this far off calibration [K]
   bool joint_ = false;
   double widened_k2_ = 0.0;  ///< sum of the squared rises widened for [K^2]

@@ -11,7 +11,7 @@ namespace ve::core {
 
 namespace {
 // Travel after which a sample counts as taken at a new place, for the adaptation.
-constexpr double kNewPlaceShareOfPitch = 1.0 / 200.0;
+constexpr double kNewPlaceShareOfPitch = HallAdaptation::kNewPlaceShareOfPitch;
 // A disagreement among the Hall sensors is averaged over this long for the
 // published sigma, and held (decaying) this long for the blame test.
 constexpr double kDisagreementAverageS = 0.25;
@@ -256,6 +256,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // starts from (and follows) what the data sheet predicts for the difference.
   if (sample.temperature_valid && std::isfinite(cfg_.sensors.temperature_c))
     adapt_.temperature(sample.temperature_c - cfg_.sensors.temperature_c);
+  // VALID asks for the temperature checked before this sample's fix was made: a first
+  // reading of the fixes' thermometer (observe_fix_gain, below) widens the sensors'
+  // covariance after this fix, whose sigma does not hold that widening yet.
+  const bool temperature_checked = adapt_.temperature_checked();
+  const double widened_k2 = adapt_.widened_k2();
 
   // Accelerometer health: missing, saturated, or dead (the same reading again and again).
   bool accel_ok = accel_usable(sample);
@@ -353,6 +358,16 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     // Without a temperature from the node, the common gain every fix sees is the
     // thermometer: how far the sensors may have drifted follows from it.
     if (judge && fix.common_gain_variance > 0.0) adapt_.observe_fix_gain(fix.common_gain, fix.common_gain_variance);
+    if (fix.ok && widen_filter_) {
+      // The fixes the filter has taken so far carried the drift the sensors' covariance
+      // now allows for, as errors that repeat along the travel, which its own variance
+      // does not hold: its position widened by what the drift makes of a fix. (Its
+      // velocity too, at the pattern's rate, made the velocity follow the fixes' noise:
+      // twice the velocity error at 1 m/s on the motor population.)
+      kf_.inflate(fix.drift_m2, 0.0, 0.0);
+      widen_filter_ = false;
+    }
+    if (adapt_.widened_k2() > widened_k2) widen_filter_ = true;  // from the next fix on
     if (fix.ok) {
       without_fix_in_row_ = 0;
       out_.hall_position_m = fix.position_m;
@@ -392,6 +407,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       // magnet period: it averages out over a good part of one.
       const double quarters = speed * averaged_s / (0.25 * cfg_.motor.magnet_pitch_m);
       drift_var_m2_ = fix.drift_m2 / (1.0 + quarters);
+      // ... and, in motion, that pattern is a velocity error too: a position error
+      // repeating with the magnet period, crossed at this speed, changes at 2 pi v / pitch.
+      const double pattern_rate = 2.0 * M_PI * speed / cfg_.motor.magnet_pitch_m;
+      drift_velocity_var_ = drift_var_m2_ * pattern_rate * pattern_rate;
       if (applied) {
         rejected_in_row_ = 0;
       } else if (++rejected_in_row_ >= cfg_.motor.filter.hall_rejections_before_reset) {
@@ -439,7 +458,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + drift_var_m2_ +
                                   scale_m * scale_m);
   const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
-  out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + scale_mps * scale_mps);
+  out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 
   // A bias far from its calibrated value: the accelerometer has changed (it is still
@@ -469,7 +488,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   if (initialised_ && fc.valid_confidence_sigma * out_.position_std_m < fc.valid_position_accuracy_m &&
       fc.valid_confidence_sigma * out_.velocity_std_mps < fc.valid_velocity_accuracy_mps &&
       without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_ &&
-      adapt_.temperature_checked())
+      temperature_checked)
     status |= status::kValid;
   out_.status = status;
   return out_;

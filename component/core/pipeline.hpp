@@ -134,6 +134,11 @@ class AxisPipeline {
   double quantisation_var_m2_ = 0.0;
   /// Likewise the sensors' gain and offset uncertainty (HallFix::drift_m2) [m^2].
   double drift_var_m2_ = 0.0;
+  /// The velocity error that drift's pattern makes at the current speed [(m/s)^2].
+  double drift_velocity_var_ = 0.0;
+  /// The sensors' covariance was widened (a temperature change): the next fix widens
+  /// the filter's covariance by the drift it allows for.
+  bool widen_filter_ = false;
   /// Travel over which a sensor's reading crosses one ADC step, on average [m].
   double quantisation_travel_m_ = 0.0;
   double disagreement_hold_m2_ = 0.0;  ///< its recent largest, widening the blame test

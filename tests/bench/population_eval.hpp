@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -204,9 +205,13 @@ struct RunResult {
 };
 
 /// Runs one scenario under one temperature condition with noise seed `noise_seed`.
+/// Every estimate, from the first sample on (not only the window's), as it is made.
+using SampleObserver = std::function<void(double t_s, const core::EncoderEstimate& estimate,
+                                          const core::AxisPipeline& pipeline, const sim::SimSource& source)>;
+
 inline RunResult run_population_scenario(const sim::PopulationMotor& p, const CalibrationOutcome& c,
                                          const PopScenario& sc, Condition cond, std::uint64_t noise_seed,
-                                         const FaultProbe& probe = {}) {
+                                         const FaultProbe& probe = {}, const SampleObserver& observe = {}) {
   RunResult r;
   sim::SimConfig cfg = p.sim;
   cfg.realtime = false;
@@ -277,6 +282,7 @@ inline RunResult run_population_scenario(const sim::PopulationMotor& p, const Ca
   while (src.read(s) == drivers::ReadStatus::ok) {
     const double t = static_cast<double>(s.t_ns) * 1e-9;
     const auto& e = pipeline.step(s);
+    if (observe) observe(t, e, pipeline, src);
     r.flagged |= e.hall_faulty_mask & ~probe_bit;
     if (probe.inject && t < probe.at_s && (e.hall_faulty_mask & probe_bit)) r.probe_flagged_before = true;
     if (probe.inject && r.detect_s < 0.0 && t >= probe.at_s && (e.hall_faulty_mask & probe_bit))
