@@ -393,6 +393,23 @@ void Node::sdo_abort(std::uint16_t index, std::uint8_t sub, std::uint32_t code, 
   ++counters_.sdo_aborts;
 }
 
+void Node::begin_transfer(Transfer direction, std::uint16_t index, std::uint8_t sub, bool size_known,
+                          std::size_t size) {
+  transfer_ = direction;
+  t_index_ = index;
+  t_sub_ = sub;
+  toggle_ = 0;
+  t_done_ = 0;
+  t_size_known_ = size_known;
+  t_size_ = size;
+}
+
+std::uint32_t Node::check_segment(Transfer direction, std::uint8_t command) const {
+  if (transfer_ != direction) return abort_code::kCommand;
+  if (((command >> 4) & 1u) != toggle_) return abort_code::kToggle;
+  return 0;
+}
+
 std::uint32_t Node::read_value(const Entry& e, std::uint8_t* bytes, std::size_t& size) const {
   if (e.type == DataType::vstring) {
     size = std::min(e.text.size(), t_buf_.size());
@@ -470,13 +487,7 @@ void Node::on_sdo(const Frame& f, std::int64_t rt_ns, Outbox& out) {
         for (std::size_t i = 0; i < size; ++i) v |= static_cast<std::uint32_t>(f.data[4 + i]) << (8 * i);
         if (const std::uint32_t c = write_entry(*e, v, size)) return sdo_abort(index, sub, c, out);
       } else {
-        transfer_ = Transfer::download;
-        t_index_ = index;
-        t_sub_ = sub;
-        toggle_ = 0;
-        t_done_ = 0;
-        t_size_known_ = sized;
-        t_size_ = sized ? get_u32(&f.data[4]) : 0;
+        begin_transfer(Transfer::download, index, sub, sized, sized ? get_u32(&f.data[4]) : 0);
         if (t_size_ > t_buf_.size()) return sdo_abort(index, sub, abort_code::kLengthHigh, out);
       }
       r.data[0] = 0x60;
@@ -485,14 +496,12 @@ void Node::on_sdo(const Frame& f, std::int64_t rt_ns, Outbox& out) {
       return;
     }
     case 0: {  // download segment
-      if (transfer_ != Transfer::download) return sdo_abort(t_index_, t_sub_, abort_code::kCommand, out);
-      const std::uint8_t t = (f.data[0] >> 4) & 1u;
-      if (t != toggle_) return sdo_abort(t_index_, t_sub_, abort_code::kToggle, out);
+      if (const std::uint32_t c = check_segment(Transfer::download, f.data[0])) return sdo_abort(t_index_, t_sub_, c, out);
       const std::size_t n = 7u - ((f.data[0] >> 1) & 0x7u);
       if (t_done_ + n > t_buf_.size()) return sdo_abort(t_index_, t_sub_, abort_code::kLengthHigh, out);
       std::memcpy(&t_buf_[t_done_], &f.data[1], n);
       t_done_ += n;
-      r.data[0] = static_cast<std::uint8_t>(0x20 | (t << 4));
+      r.data[0] = static_cast<std::uint8_t>(0x20 | (toggle_ << 4));
       if (f.data[0] & 0x01) {  // last segment
         transfer_ = Transfer::none;
         if (t_size_known_ && t_done_ != t_size_) return sdo_abort(t_index_, t_sub_, abort_code::kLength, out);
@@ -519,23 +528,16 @@ void Node::on_sdo(const Frame& f, std::int64_t rt_ns, Outbox& out) {
       } else {
         r.data[0] = 0x41;
         put_u32(&r.data[4], static_cast<std::uint32_t>(size));
-        transfer_ = Transfer::upload;
-        t_index_ = index;
-        t_sub_ = sub;
-        toggle_ = 0;
-        t_size_ = size;
-        t_done_ = 0;
+        begin_transfer(Transfer::upload, index, sub, true, size);
       }
       out.push(r);
       return;
     }
     case 3: {  // upload segment
-      if (transfer_ != Transfer::upload) return sdo_abort(t_index_, t_sub_, abort_code::kCommand, out);
-      const std::uint8_t t = (f.data[0] >> 4) & 1u;
-      if (t != toggle_) return sdo_abort(t_index_, t_sub_, abort_code::kToggle, out);
+      if (const std::uint32_t c = check_segment(Transfer::upload, f.data[0])) return sdo_abort(t_index_, t_sub_, c, out);
       const std::size_t n = std::min<std::size_t>(7, t_size_ - t_done_);
       const bool last = t_done_ + n >= t_size_;
-      r.data[0] = static_cast<std::uint8_t>((t << 4) | ((7 - n) << 1) | (last ? 1 : 0));
+      r.data[0] = static_cast<std::uint8_t>((toggle_ << 4) | ((7 - n) << 1) | (last ? 1 : 0));
       std::memcpy(&r.data[1], &t_buf_[t_done_], n);
       t_done_ += n;
       toggle_ ^= 1u;

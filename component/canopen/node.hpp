@@ -77,21 +77,25 @@ class ObjectDictionary {
   std::vector<Object> objects_;
 };
 
-// ---- SDO abort codes (CiA 301) ----
+// ---- SDO abort codes (CiA 301, 7.2.4.3.17), the ones this node sends ----
+// An unscoped enumeration: a code is the 32-bit value sent in the abort frame,
+// and 0 (no code) means success where a function returns one.
 namespace abort_code {
-inline constexpr std::uint32_t kToggle = 0x05030000;
-inline constexpr std::uint32_t kCommand = 0x05040001;
-inline constexpr std::uint32_t kWriteOnly = 0x06010001;
-inline constexpr std::uint32_t kReadOnly = 0x06010002;
-inline constexpr std::uint32_t kNoObject = 0x06020000;
-inline constexpr std::uint32_t kNotMappable = 0x06040041;
-inline constexpr std::uint32_t kPdoLength = 0x06040042;
-inline constexpr std::uint32_t kLength = 0x06070010;
-inline constexpr std::uint32_t kLengthHigh = 0x06070012;
-inline constexpr std::uint32_t kLengthLow = 0x06070013;
-inline constexpr std::uint32_t kNoSubindex = 0x06090011;
-inline constexpr std::uint32_t kRange = 0x06090030;
-inline constexpr std::uint32_t kState = 0x08000022;
+enum : std::uint32_t {
+  kToggle = 0x05030000,       ///< toggle bit not alternated
+  kCommand = 0x05040001,      ///< command specifier not valid or unknown
+  kWriteOnly = 0x06010001,    ///< attempt to read a write-only object
+  kReadOnly = 0x06010002,     ///< attempt to write a read-only object
+  kNoObject = 0x06020000,     ///< object does not exist in the object dictionary
+  kNotMappable = 0x06040041,  ///< object cannot be mapped to the PDO
+  kPdoLength = 0x06040042,    ///< the mapped objects would exceed the PDO length
+  kLength = 0x06070010,       ///< data type does not match, length does not match
+  kLengthHigh = 0x06070012,   ///< ... length too high
+  kLengthLow = 0x06070013,    ///< ... length too low
+  kNoSubindex = 0x06090011,   ///< sub-index does not exist
+  kRange = 0x06090030,        ///< value range of parameter exceeded
+  kState = 0x08000022,        ///< data cannot be transferred because of the present device state
+};
 }  // namespace abort_code
 
 // ---- 6503h alarms / 6505h warnings and EMCY codes ----
@@ -189,6 +193,13 @@ class Node {
   void check_alarms(std::int64_t mono_ns, Outbox& out);
   void on_sdo(const Frame& f, std::int64_t rt_ns, Outbox& out);
   void sdo_abort(std::uint16_t index, std::uint8_t sub, std::uint32_t code, Outbox& out);
+  // Segmented SDO transfer (CiA 301 7.2.4.3): the initiate request starts one of
+  // `size` bytes (upload) or of `size` announced bytes (download, when
+  // `size_known`); every segment must belong to a transfer of the same direction
+  // and carry the toggle bit expected next, else the abort code to send.
+  enum class Transfer { none, download, upload };
+  void begin_transfer(Transfer direction, std::uint16_t index, std::uint8_t sub, bool size_known, std::size_t size);
+  std::uint32_t check_segment(Transfer direction, std::uint8_t command) const;
   std::uint32_t check_write(Entry& e, std::uint32_t value, std::size_t size) const;
   std::uint32_t write_entry(Entry& e, std::uint32_t value, std::size_t size);
   std::uint32_t read_value(const Entry& e, std::uint8_t* bytes, std::size_t& size) const;
@@ -206,7 +217,7 @@ class Node {
   bool emcy_pending_ = false;
   std::int64_t emcy_inhibit_until_ns_ = 0;
   // SDO transfer in progress.
-  enum class Transfer { none, download, upload } transfer_ = Transfer::none;
+  Transfer transfer_ = Transfer::none;
   std::uint16_t t_index_ = 0;
   std::uint8_t t_sub_ = 0;
   std::uint8_t toggle_ = 0;
