@@ -2,6 +2,7 @@
 // Sources push timestamped samples; the core never pulls from hardware itself.
 #pragma once
 
+#include <cstdint>
 #include <string>
 
 #include "core/sample.hpp"
@@ -38,6 +39,22 @@ class SensorSource {
     (void)position_m;
     return false;
   }
+
+  /// Sources paced by the clock rather than by data arriving (the simulator in real
+  /// time) can be read in turn from one thread that waits once per tick for all of
+  /// them. share_clock(start_ns), before the first read(), starts the source's clock
+  /// at `start_ns` [CLOCK_MONOTONIC ns]: sample n is due at start_ns plus its offset.
+  /// From then on read() does not wait: the caller waits until next_due_ns() first.
+  /// False, and nothing changed, for a source that waits for data of its own
+  /// (SocketCAN, a replayed log) or is not paced at all.
+  virtual bool share_clock(std::int64_t start_ns) {
+    (void)start_ns;
+    return false;
+  }
+  /// With a shared clock: the CLOCK_MONOTONIC instant [ns] from which read() returns
+  /// without waiting (the next sample, a timeout while the source is silent, or the
+  /// end of the stream); 0: at once. Never allocates.
+  virtual std::int64_t next_due_ns() const { return 0; }
 
   /// Makes a blocked read() return ReadStatus::stopped. Safe from another thread.
   virtual void stop() {}

@@ -37,6 +37,7 @@
 #include "realtime.hpp"
 #include "reports.hpp"
 #include "service.hpp"
+#include "pacing.hpp"
 #include "signals.hpp"
 #include "sim/calibration_run.hpp"
 #include "sim/sim_source.hpp"
@@ -137,7 +138,6 @@ struct DiagnosticsAccumulator {
 /// Per-axis loop state shared with the status reporter.
 struct AxisLoop {
   AxisSetup setup;
-  std::thread thread;
   int slot = -1;  ///< StateWriter::add_axis
   std::atomic<std::uint64_t> samples{0};    ///< estimated
   std::atomic<std::uint64_t> published{0};  ///< state samples written (every publish_divider-th)
@@ -216,67 +216,87 @@ void fill_diagnostics(const AxisLoop& loop, const DiagnosticsAccumulator& acc, c
 /// the loop did not wait through, being behind).
 constexpr std::int64_t kSilenceLoggedNs = 100000000;
 
-void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnostics, const std::atomic<bool>& stopping) {
-  core::RawSample sample;
-  ve::dds::EncoderState state;
-  ve::dds::Diagnostics diag;
-  std::uint64_t sequence = 0;
-  std::uint64_t diag_sequence = 0;
-  auto& source = *loop.setup.source;
-  auto& pipeline = *loop.setup.pipeline;
-  const DeadlineCounters& deadline = writer.counters(loop.slot);
-  const auto samples_per_diag = static_cast<std::uint64_t>(
-      std::max(1.0, std::round(loop.setup.config.motor.sample_rate_hz * kDiagnosticsPeriodNs * 1e-9)));
-  const std::int64_t start_ns = clock_ns(CLOCK_MONOTONIC);
-  DiagnosticsAccumulator acc;
-  acc.reset(start_ns);
-  std::int64_t last_arrival_ns = 0;
-  const int publish_divider = std::max(1, loop.setup.config.output.publish_divider);
-  int until_publish = 1;  // the first estimate is published
-  std::uint32_t last_status = 0;
-  bool silent = false;  // said in the log: the source has sent nothing for kSilenceLoggedNs
-  std::int64_t last_sample_t_ns = 0;
-  for (;;) {
-    const auto st = source.read(sample);
+/// One axis' sample path: a read of its source, the estimator step, the DDS write,
+/// the diagnostics and the log lines about it. Everything it needs is allocated when
+/// it is made (in its sample thread, before the first sample); step() allocates nothing.
+class AxisRunner {
+ public:
+  AxisRunner(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnostics, const std::atomic<bool>& stopping)
+      : loop_(loop),
+        writer_(writer),
+        diagnostics_(diagnostics),
+        stopping_(stopping),
+        source_(*loop.setup.source),
+        pipeline_(*loop.setup.pipeline),
+        deadline_(writer.counters(loop.slot)),
+        samples_per_diag_(static_cast<std::uint64_t>(
+            std::max(1.0, std::round(loop.setup.config.motor.sample_rate_hz * kDiagnosticsPeriodNs * 1e-9)))),
+        start_ns_(clock_ns(CLOCK_MONOTONIC)),
+        publish_divider_(std::max(1, loop.setup.config.output.publish_divider)) {
+    acc_.reset(start_ns_);
+  }
+
+  drivers::SensorSource& source() { return source_; }
+
+  /// One read of the source and all that follows from it. False once the axis has
+  /// ended (its source ended, failed or was stopped): finish() has been done.
+  bool step() {
+    const auto st = source_.read(sample_);
     if (st == drivers::ReadStatus::timeout) {
-      const std::int64_t quiet_ns = clock_ns(CLOCK_MONOTONIC) - (last_arrival_ns != 0 ? last_arrival_ns : start_ns);
-      if (!silent && quiet_ns >= kSilenceLoggedNs) {
-        silent = true;
-        spdlog::warn("axis '{}': no sample for {:.0f} ms: the sensor source is silent", loop.setup.config.name,
+      const std::int64_t quiet_ns = clock_ns(CLOCK_MONOTONIC) - (last_arrival_ns_ != 0 ? last_arrival_ns_ : start_ns_);
+      if (!silent_ && quiet_ns >= kSilenceLoggedNs) {
+        silent_ = true;
+        spdlog::warn("axis '{}': no sample for {:.0f} ms: the sensor source is silent", loop_.setup.config.name,
                      static_cast<double>(quiet_ns) * 1e-6);
       }
-      continue;
+      return true;
     }
     if (st != drivers::ReadStatus::ok) {
-      loop.end_reason = st == drivers::ReadStatus::error ? source.last_error() : std::string();
-      break;
+      loop_.end_reason = st == drivers::ReadStatus::error ? source_.last_error() : std::string();
+      finish();
+      return false;
     }
+    process();
+    return true;
+  }
+
+  /// The axis leaves the loop. A source that ended by itself (not a shutdown): the
+  /// instance leaves, so that its deadline no longer runs while the other axes go on.
+  void finish() {
+    if (!stopping_.load()) writer_.retire_axis(loop_.slot);
+    loop_.finished.store(true);
+  }
+
+ private:
+  void process() {
+    AxisLoop& loop = loop_;
+    const core::RawSample& sample = sample_;
     if (loop.canopen) loop.canopen_state.claim();
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
     if (loop.canopen) loop.canopen_state.begin(handover_rt_ns);  // a SYNC after this instant waits for it
-    const std::int64_t sample_gap_ns = last_arrival_ns != 0 ? sample.t_ns - last_sample_t_ns : 0;
-    if (silent || sample_gap_ns >= kSilenceLoggedNs) {
-      silent = false;
-      const std::int64_t waited_ns = arrival_ns - (last_arrival_ns != 0 ? last_arrival_ns : start_ns);
+    const std::int64_t sample_gap_ns = last_arrival_ns_ != 0 ? sample.t_ns - last_sample_t_ns_ : 0;
+    if (silent_ || sample_gap_ns >= kSilenceLoggedNs) {
+      silent_ = false;
+      const std::int64_t waited_ns = arrival_ns - (last_arrival_ns_ != 0 ? last_arrival_ns_ : start_ns_);
       spdlog::info("axis '{}': samples again after {:.3f} s without any", loop.setup.config.name,
                    static_cast<double>(std::max(waited_ns, sample_gap_ns)) * 1e-9);
     }
-    last_sample_t_ns = sample.t_ns;
-    const core::EncoderEstimate& est = pipeline.step(sample);
-    if ((est.status ^ last_status) & core::status::kHomed) {
+    last_sample_t_ns_ = sample.t_ns;
+    const core::EncoderEstimate& est = pipeline_.step(sample);
+    if ((est.status ^ last_status_) & core::status::kHomed) {
       // Rare (start-up, a long gap): worth a line in the log.
       if (est.status & core::status::kHomed) {
-        if (pipeline.signature_homing().state() == core::SignatureHoming::State::homed)
+        if (pipeline_.signature_homing().state() == core::SignatureHoming::State::homed)
           spdlog::info("axis '{}': homed by the magnet signature after {:.1f} mm of motion", loop.setup.config.name,
-                       pipeline.signature_homing().motion_m() * 1e3);
+                       pipeline_.signature_homing().motion_m() * 1e3);
         else
           spdlog::info("axis '{}': homed", loop.setup.config.name);
       } else {
         spdlog::warn("axis '{}': not homed (position relative until homed again)", loop.setup.config.name);
       }
     }
-    last_status = est.status;
+    last_status_ = est.status;
     if (loop.canopen) {  // the CAN node's thread reads it; this loop never waits for it
       canopen::AxisSnapshot snap;
       snap.present = true;
@@ -287,13 +307,13 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
       snap.status = est.status;
       loop.canopen_state.publish(snap);
     }
-    if (--until_publish == 0) {  // output.publish_divider: every Nth estimate is published
-      until_publish = publish_divider;
-      fill_state(est, loop.setup.config, ++sequence, state);
-      state.acceleration_std_mps2(est.acceleration_std_mps2);
-      state.source_time_ns(handover_rt_ns);
-      state.publish_time_ns(clock_ns(CLOCK_REALTIME));
-      if (!writer.write(loop.slot, state)) loop.write_failures.fetch_add(1, std::memory_order_relaxed);
+    if (--until_publish_ == 0) {  // output.publish_divider: every Nth estimate is published
+      until_publish_ = publish_divider_;
+      fill_state(est, loop.setup.config, ++sequence_, state_);
+      state_.acceleration_std_mps2(est.acceleration_std_mps2);
+      state_.source_time_ns(handover_rt_ns);
+      state_.publish_time_ns(clock_ns(CLOCK_REALTIME));
+      if (!writer_.write(loop.slot, state_)) loop.write_failures.fetch_add(1, std::memory_order_relaxed);
       loop.published.fetch_add(1, std::memory_order_relaxed);
     }
     loop.samples.fetch_add(1, std::memory_order_relaxed);
@@ -305,19 +325,20 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
     loop.status.store(est.status, std::memory_order_relaxed);
 
     // Diagnostics: fixed-size counters, no allocation per sample.
+    DiagnosticsAccumulator& acc = acc_;
     const std::int64_t done_ns = clock_ns(CLOCK_MONOTONIC);
     const double step_ns = static_cast<double>(done_ns - arrival_ns);
     ++acc.samples;
     acc.step_sum_ns += step_ns;
     acc.step_max_ns = std::max(acc.step_max_ns, step_ns);
-    if (last_arrival_ns != 0) {
-      const double interval = static_cast<double>(arrival_ns - last_arrival_ns);
+    if (last_arrival_ns_ != 0) {
+      const double interval = static_cast<double>(arrival_ns - last_arrival_ns_);
       ++acc.intervals;
       acc.interval_sum_ns += interval;
       acc.interval_sumsq_ns2 += interval * interval;
       acc.interval_max_ns = std::max(acc.interval_max_ns, interval);
     }
-    last_arrival_ns = arrival_ns;
+    last_arrival_ns_ = arrival_ns;
     if (est.hall_sensors_used > 0) {
       ++acc.fixes;
       acc.innovation_sumsq += est.hall_innovation_sigma * est.hall_innovation_sigma;
@@ -326,19 +347,147 @@ void axis_loop(AxisLoop& loop, StateWriter& writer, DiagnosticsWriter& diagnosti
     }
     acc.sensors_used_min = std::min(acc.sensors_used_min, est.hall_sensors_used);
     acc.valid_and &= sample.hall_valid_mask;
-    if (acc.samples >= samples_per_diag || done_ns - acc.start_ns >= kDiagnosticsPeriodNs) {
-      fill_diagnostics(loop, acc, sample, est, state, deadline, ++diag_sequence, done_ns, diag);
-      if (diagnostics.write(diag)) loop.diagnostics_published.fetch_add(1, std::memory_order_relaxed);
-      loop.innovation_rms.store(diag.innovation_rms(), std::memory_order_relaxed);
-      loop.step_max_us.store(diag.step_time_max_us(), std::memory_order_relaxed);
-      writer.poll_deadline_episode(loop.slot, clock_ns(CLOCK_MONOTONIC));
+    if (acc.samples >= samples_per_diag_ || done_ns - acc.start_ns >= kDiagnosticsPeriodNs) {
+      fill_diagnostics(loop, acc, sample, est, state_, deadline_, ++diag_sequence_, done_ns, diag_);
+      if (diagnostics_.write(diag_)) loop.diagnostics_published.fetch_add(1, std::memory_order_relaxed);
+      loop.innovation_rms.store(diag_.innovation_rms(), std::memory_order_relaxed);
+      loop.step_max_us.store(diag_.step_time_max_us(), std::memory_order_relaxed);
+      writer_.poll_deadline_episode(loop.slot, clock_ns(CLOCK_MONOTONIC));
       acc.reset(clock_ns(CLOCK_MONOTONIC));
     }
   }
-  // The source ended by itself (not a shutdown): the instance leaves, so that its
-  // deadline no longer runs while the other axes go on.
-  if (!stopping.load()) writer.retire_axis(loop.slot);
-  loop.finished.store(true);
+
+  AxisLoop& loop_;
+  StateWriter& writer_;
+  DiagnosticsWriter& diagnostics_;
+  const std::atomic<bool>& stopping_;
+  drivers::SensorSource& source_;
+  core::AxisPipeline& pipeline_;
+  const DeadlineCounters& deadline_;
+  const std::uint64_t samples_per_diag_;
+  const std::int64_t start_ns_;
+  const int publish_divider_;
+  core::RawSample sample_;
+  ve::dds::EncoderState state_;
+  ve::dds::Diagnostics diag_;
+  std::uint64_t sequence_ = 0;
+  std::uint64_t diag_sequence_ = 0;
+  DiagnosticsAccumulator acc_;
+  std::int64_t last_arrival_ns_ = 0;
+  int until_publish_ = 1;  // the first estimate is published
+  std::uint32_t last_status_ = 0;
+  bool silent_ = false;  // said in the log: the source has sent nothing for kSilenceLoggedNs
+  std::int64_t last_sample_t_ns_ = 0;
+};
+
+/// The axes one sample thread steps (realtime.sample_loop). Several axes share a
+/// thread only when their sources are paced by the clock (the simulator in real
+/// time), their rates divide the group's base rate and their CPUs are the same; an
+/// axis whose source waits for its own frames is a group of one.
+struct SampleGroup {
+  std::vector<AxisLoop*> axes;
+  double base_rate_hz = 0.0;  ///< the fastest member's rate: one wake-up per period of it
+  bool shared_clock = false;  ///< the members' sources share one clock (all clock-paced)
+  std::string thread_name;
+  std::thread thread;
+};
+
+/// A single axis: its source paces the loop (a blocking read per sample).
+/// Several: one wait per tick for the earliest due source, then every due axis in turn.
+void group_loop(SampleGroup& group, StateWriter& writer, DiagnosticsWriter& diagnostics,
+                const std::atomic<bool>& stopping) {
+  std::vector<std::unique_ptr<AxisRunner>> runners;
+  runners.reserve(group.axes.size());
+  for (AxisLoop* loop : group.axes) runners.push_back(std::make_unique<AxisRunner>(*loop, writer, diagnostics, stopping));
+  if (!group.shared_clock) {
+    for (auto& r : runners)
+      while (r->step()) {
+      }
+    return;
+  }
+  const std::size_t n = runners.size();
+  std::vector<char> done(n, 0);
+  std::size_t active = n;
+  const std::int64_t start_ns = drivers::monotonic_ns();
+  for (auto& r : runners)
+    if (!r->source().share_clock(start_ns))  // not expected: the grouping chose clock-paced sources
+      spdlog::warn("sample thread '{}': a source cannot share the group's clock; it paces itself", group.thread_name);
+  while (active > 0) {
+    std::int64_t due_ns = INT64_MAX;
+    for (std::size_t i = 0; i < n; ++i)
+      if (!done[i]) due_ns = std::min(due_ns, runners[i]->source().next_due_ns());
+    if (!drivers::sleep_until(due_ns, stopping)) break;  // shutdown
+    const std::int64_t now_ns = drivers::monotonic_ns();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (done[i] || runners[i]->source().next_due_ns() > now_ns) continue;
+      if (!runners[i]->step()) {
+        done[i] = 1;
+        --active;
+      }
+    }
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    if (!done[i]) runners[i]->finish();
+}
+
+/// Whether an axis' source is paced by the clock alone, so that it can share a sample thread.
+bool clock_paced(const config::AxisConfig& axis) {
+  return axis.driver.kind == config::DriverConfig::Kind::sim && axis.driver.sim.realtime;
+}
+
+/// The sample threads of `run`: with realtime.sample_loop `shared`, the clock-paced
+/// axes in groups of one base rate (every member's rate divides it) and one CPU set,
+/// in the machine file's order; every other axis alone.
+std::vector<std::unique_ptr<SampleGroup>> plan_groups(const std::vector<std::unique_ptr<AxisLoop>>& loops,
+                                                      const config::RealtimeConfig& realtime) {
+  std::vector<std::unique_ptr<SampleGroup>> groups;
+  const bool shared = realtime.sample_loop == config::RealtimeConfig::SampleLoop::shared;
+  // Fastest first, so that each group's first member sets its base rate.
+  std::vector<AxisLoop*> order;
+  for (const auto& l : loops) order.push_back(l.get());
+  std::stable_sort(order.begin(), order.end(), [](const AxisLoop* a, const AxisLoop* b) {
+    return a->setup.config.motor.sample_rate_hz > b->setup.config.motor.sample_rate_hz;
+  });
+  for (AxisLoop* l : order) {
+    const auto& axis = l->setup.config;
+    const double rate = axis.motor.sample_rate_hz;
+    SampleGroup* into = nullptr;
+    if (shared && clock_paced(axis)) {
+      for (auto& g : groups) {
+        if (!g->shared_clock || realtime.cpus_for(g->axes.front()->setup.config.name) != realtime.cpus_for(axis.name))
+          continue;
+        const double ratio = g->base_rate_hz / rate;
+        if (std::abs(ratio - std::round(ratio)) <= 1e-9 * ratio) {
+          into = g.get();
+          break;
+        }
+      }
+    }
+    if (into == nullptr) {
+      groups.push_back(std::make_unique<SampleGroup>());
+      into = groups.back().get();
+      into->base_rate_hz = rate;
+      into->shared_clock = shared && clock_paced(axis);
+    }
+    into->axes.push_back(l);
+  }
+  // The machine file's order within and across groups, for the log and the threads.
+  auto index_of = [&](const AxisLoop* l) {
+    for (std::size_t i = 0; i < loops.size(); ++i)
+      if (loops[i].get() == l) return i;
+    return loops.size();
+  };
+  for (auto& g : groups)
+    std::sort(g->axes.begin(), g->axes.end(),
+              [&](const AxisLoop* a, const AxisLoop* b) { return index_of(a) < index_of(b); });
+  std::sort(groups.begin(), groups.end(), [&](const auto& a, const auto& b) {
+    return index_of(a->axes.front()) < index_of(b->axes.front());
+  });
+  for (auto& g : groups) {
+    const std::string& first = g->axes.front()->setup.config.name;
+    g->thread_name = g->axes.size() == 1 ? "ve-" + first : "ve-" + first + "+" + std::to_string(g->axes.size() - 1);
+  }
+  return groups;
 }
 
 }  // namespace
@@ -499,12 +648,26 @@ int run_command(const RunOptions& options) {
     for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
     Realtime realtime(machine.realtime, axis_names);
     if (!realtime.ok()) return 1;
+    const auto groups = plan_groups(loops, machine.realtime);
     for (auto& loop : loops)
       if (loop->canopen) loop->canopen->start(machine.realtime);  // boot-up; no estimate yet (6503h position error)
-    for (auto& loop : loops)
-      loop->thread = std::thread([&realtime, &state_writer, &diagnostics_writer, &stopping, l = loop.get()] {
-        realtime.enter_sample_thread(l->setup.config.name);
-        axis_loop(*l, state_writer, diagnostics_writer, stopping);
+    for (const auto& g : groups) {
+      std::string names;
+      for (const AxisLoop* l : g->axes) names += (names.empty() ? "'" : ", '") + l->setup.config.name + "'";
+      if (g->axes.size() > 1)
+        spdlog::info("sample thread '{}': {} axes {} in one loop at {:g} Hz (one wake-up per tick)", g->thread_name,
+                     g->axes.size(), names, g->base_rate_hz);
+      else
+        spdlog::info("sample thread '{}': axis {} alone at {:g} Hz ({})", g->thread_name, names, g->base_rate_hz,
+                     machine.realtime.sample_loop == config::RealtimeConfig::SampleLoop::per_axis
+                         ? "realtime.sample_loop: per_axis"
+                         : !clock_paced(g->axes.front()->setup.config) ? "its source paces it"
+                                                                       : "no other axis shares its rate and CPUs");
+    }
+    for (auto& g : groups)
+      g->thread = std::thread([&realtime, &state_writer, &diagnostics_writer, &stopping, g = g.get()] {
+        realtime.enter_sample_thread(g->axes.front()->setup.config.name, g->thread_name);
+        group_loop(*g, state_writer, diagnostics_writer, stopping);
       });
 
     // systemd: ready only once every axis publishes; the watchdog is petted only
@@ -583,8 +746,9 @@ int run_command(const RunOptions& options) {
     service.stopping();
     stopping.store(true);
     for (auto& loop : loops) loop->setup.source->stop();
+    for (auto& g : groups)
+      if (g->thread.joinable()) g->thread.join();
     for (auto& loop : loops) {
-      if (loop->thread.joinable()) loop->thread.join();
       if (loop->canopen) {
         loop->canopen->stop();
         spdlog::info("axis '{}': canopen: {}", loop->setup.config.name, loop->canopen->stats());

@@ -111,9 +111,12 @@ void delivery(Q& q, fdds::ReliabilityQosPolicyKind reliability, fdds::Durability
   if (depth > 0) q.history().depth = depth;
 }
 
-/// A reader of a topic with one instance per axis keeps every axis of a machine
-/// (transport::kReaderMaxAxes), each with the history depth `depth`.
-void per_axis_limits(fdds::DataReaderQos& q, std::int32_t depth) {
+/// A reader or writer of a topic with one instance per axis keeps every axis of a
+/// machine (transport::kReaderMaxAxes), each with the history depth `depth`: Fast DDS
+/// 2.9 keeps 10 instances by default, and a writer at that limit fails the write of
+/// the 11th axis on.
+template <class Q>
+void per_axis_limits(Q& q, std::int32_t depth) {
   auto& r = q.resource_limits();
   r.max_instances = transport::kReaderMaxAxes;
   r.max_samples_per_instance = depth;
@@ -157,6 +160,7 @@ void state_reader_defaults(fdds::DataReaderQos& q) {
 void diagnostics_writer_defaults(fdds::DataWriterQos& q) {
   delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::VOLATILE_DURABILITY_QOS, 1);
   q.reliability().max_blocking_time = duration_ms(1.0);
+  per_axis_limits(q, 1);
   periodic(q, 500.0, 1.0, 0.5);
   q.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
 }
@@ -174,7 +178,7 @@ void diagnostics_reader_defaults(fdds::DataReaderQos& q) {
 template <class Q>
 void last_per_axis_defaults(Q& q) {
   delivery(q, fdds::RELIABLE_RELIABILITY_QOS, fdds::TRANSIENT_LOCAL_DURABILITY_QOS, 1);
-  if constexpr (std::is_same_v<Q, fdds::DataReaderQos>) per_axis_limits(q, 1);
+  per_axis_limits(q, 1);
 }
 
 // Calibration commands: every request counts and none is replayed to a process

@@ -176,8 +176,8 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
                  locked ? "; memory locked" : "");
 }
 
-void Realtime::enter_sample_thread(const std::string& axis) {
-  const std::string name = ("ve-" + axis).substr(0, 15);
+void Realtime::enter_sample_thread(const std::string& axis, const std::string& thread_name) {
+  const std::string name = (thread_name.empty() ? "ve-" + axis : thread_name).substr(0, 15);
   pthread_setname_np(pthread_self(), name.c_str());
   const std::vector<int>& cpus = config_.cpus_for(axis);
   const bool affinity = !cpus.empty() &&

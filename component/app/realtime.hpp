@@ -1,6 +1,6 @@
 // Real-time settings of `run`, from the machine file's `realtime:` section:
 // memory locked (mlockall) once for the process, and SCHED_FIFO priority and CPU
-// affinity for each per-axis sample thread.
+// affinity for each sample thread (one per group of axes, realtime.sample_loop).
 //
 // Permissions: SCHED_FIFO needs CAP_SYS_NICE or RLIMIT_RTPRIO >= the priority;
 // locking all memory needs CAP_IPC_LOCK or an RLIMIT_MEMLOCK above the process'
@@ -31,7 +31,9 @@ class Realtime {
   /// Called first thing in an axis' sample thread: names the thread "ve-AXIS"
   /// (seen in /proc/PID/task/*/comm, ps -L, top -H) and applies its affinity and
   /// priority. Settings the probe found impossible are not tried again.
-  void enter_sample_thread(const std::string& axis);
+  /// A thread that steps several axes (realtime.sample_loop: shared) enters as its
+  /// first axis (they share CPUs and priority) and is named `thread_name` if not empty.
+  void enter_sample_thread(const std::string& axis, const std::string& thread_name = std::string());
 
  private:
   config::RealtimeConfig config_;

@@ -1193,7 +1193,7 @@ class MachineLoader {
   }
 
   // ---- realtime section ----
-  /// `realtime: {sample_thread_priority, cpu_affinity, lock_memory, required}`.
+  /// `realtime: {sample_thread_priority, cpu_affinity, lock_memory, required, sample_loop}`.
   /// The CPUs must exist on the machine that loads the file: a machine file
   /// describes the machine it runs on, and `check` there reports a wrong index.
   static void read_realtime(Map rt, MachineConfig& cfg) {
@@ -1205,6 +1205,8 @@ class MachineLoader {
            }));
     rt.get("lock_memory", c.lock_memory);
     rt.get("required", c.required);
+    rt.get_enum("sample_loop", c.sample_loop,
+                {{"shared", RealtimeConfig::SampleLoop::shared}, {"per_axis", RealtimeConfig::SampleLoop::per_axis}});
     const Value aff = rt.value("cpu_affinity");
     if (!aff.present() || aff.is_null()) return;
     if (aff.is_sequence()) {

@@ -95,7 +95,7 @@ struct DdsConfig {
   std::vector<std::string> statistics;
 };
 
-/// `realtime:` in the machine file: how the per-axis sample threads are scheduled
+/// `realtime:` in the machine file: how the sample threads are scheduled
 /// and whether the process' memory is locked. All off by default.
 struct RealtimeConfig {
   int sample_thread_priority = 0;  ///< SCHED_FIFO priority 1..99 of every sample thread; 0 = normal scheduling
@@ -108,6 +108,12 @@ struct RealtimeConfig {
   /// false: a setting the process has no permission for is logged as a warning and
   /// the run goes on without it; true: `run` exits with 1 instead.
   bool required = false;
+  /// How the axes' samples are paced (`sample_loop`): `shared` (the default) steps the
+  /// simulated axes whose rates divide each other's and whose CPUs are the same in one
+  /// thread, one wake-up per tick; `per_axis` gives every axis its own thread. Axes that
+  /// wait for frames of their own (SocketCAN, replayed logs) always have their own.
+  enum class SampleLoop { shared, per_axis };
+  SampleLoop sample_loop = SampleLoop::shared;
 
   /// The CPUs of one axis' sample thread; empty = not pinned.
   const std::vector<int>& cpus_for(const std::string& axis) const {

@@ -321,6 +321,22 @@ bool SimSource::wait_until_due(std::uint64_t n) {
   return drivers::sleep_until(clock_start_ns_ + sample_time_ns(n), stop_);
 }
 
+bool SimSource::share_clock(std::int64_t start_ns) {
+  if (!cfg_.realtime || !error_.empty() || clock_started_) return false;
+  clock_started_ = true;
+  clock_shared_ = true;
+  clock_start_ns_ = start_ns;
+  return true;
+}
+
+std::int64_t SimSource::next_due_ns() const {
+  if (!clock_shared_ || !error_.empty() || stop_.load(std::memory_order_relaxed)) return 0;
+  const std::uint64_t n = next_index_;
+  if (max_samples_ != 0 && n >= max_samples_) return 0;
+  if (has_silence_ && next_sent(n) != n) return silent_due_ns_;  // 0 on entering the silence: at once
+  return clock_start_ns_ + sample_time_ns(n);
+}
+
 std::uint64_t SimSource::next_sent(std::uint64_t n) const {
   const double rate = motor_.sample_rate_hz;
   for (bool moved = true; moved;) {
@@ -358,7 +374,15 @@ drivers::ReadStatus SimSource::read(core::RawSample& out) {
       if (cfg_.realtime) {
         start_clock();
         const std::int64_t now = drivers::monotonic_ns();
-        if (last == kNeverSent || clock_start_ns_ + sample_time_ns(last) - now > kSilentReadTimeoutNs) {
+        if (clock_shared_) {
+          // The caller waited until next_due_ns(): a timeout now, the next one a
+          // period later or when `last` is due, whichever comes first.
+          const std::int64_t due = last == kNeverSent ? INT64_MAX : clock_start_ns_ + sample_time_ns(last);
+          if (now < due) {
+            silent_due_ns_ = due - now > kSilentReadTimeoutNs ? now + kSilentReadTimeoutNs : due;
+            return drivers::ReadStatus::timeout;
+          }
+        } else if (last == kNeverSent || clock_start_ns_ + sample_time_ns(last) - now > kSilentReadTimeoutNs) {
           if (!drivers::sleep_until(now + kSilentReadTimeoutNs, stop_)) return drivers::ReadStatus::stopped;
           return drivers::ReadStatus::timeout;
         }

@@ -58,6 +58,11 @@ class SimSource final : public drivers::SensorSource {
     position_m = truth_.position_m;
     return true;
   }
+  /// Real time only: the clock starts at `start_ns` (not at the first read) and read()
+  /// never sleeps; a silent node's timeouts come every kSilentReadTimeoutNs as
+  /// next_due_ns() says. False when not real time or already started.
+  bool share_clock(std::int64_t start_ns) override;
+  std::int64_t next_due_ns() const override;
   /// Wakes a sleeping read() within a few ms; every later read() returns stopped.
   void stop() override { stop_.store(true, std::memory_order_relaxed); }
   std::string describe() const override;
@@ -161,6 +166,8 @@ class SimSource final : public drivers::SensorSource {
 
   std::atomic<bool> stop_{false};
   bool clock_started_ = false;
+  bool clock_shared_ = false;        // share_clock(): the caller waits, read() does not
+  std::int64_t silent_due_ns_ = 0;   // shared clock, silent node: the next timeout
   std::int64_t clock_start_ns_ = 0;  // CLOCK_MONOTONIC at the first read
 };
 

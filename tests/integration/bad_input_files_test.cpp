@@ -316,7 +316,8 @@ const char* kMachine =
     "realtime:\n"
     "  sample_thread_priority: 0\n"
     "  lock_memory: false\n"
-    "  required: false\n";
+    "  required: false\n"
+    "  sample_loop: shared\n";
 
 /// The socketcan axis of a machine, its frame layout in layout.yaml.
 const char* kCanMachine =
@@ -589,6 +590,7 @@ std::vector<Case> machine_cases() {
            {"axes[0].driver.profile.type", "teleport", "is not one of"},
            {"axes[0].driver.realtime", "yes", "expected true or false"},
            {"realtime.lock_memory", "1", "expected true or false"},
+           {"realtime.sample_loop", "per_group", "is not one of"},
            {"axes[0].driver.temperature.profile", "hot", "is not one of"},
        })
     c.push_back({"machine.yaml " + key + " = " + v, Kind::machine, key, v, key, why});

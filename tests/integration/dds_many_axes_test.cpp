@@ -14,6 +14,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 
 #include "process.hpp"
 #include "speed.hpp"
@@ -55,6 +56,8 @@ void every_axis_reaches(const char* profiles_file) {
   // Every axis' rows arrive; on a reader that keeps 10 instances, two never do.
   const bool all = ve::test::wait_until(
       [&] { return axes_seen(ve::test::read_file(tmp + ".csv")).size() == kAxes; }, ve::test::patience(30s));
+  // Long enough for a few diagnostics periods (0.1 s) of every axis, checked below.
+  std::this_thread::sleep_for(500ms);
   monitor.signal(SIGTERM);
   EXPECT_EQ(monitor.wait_exit(ve::test::patience(15s)), 0) << ve::test::read_file(tmp + ".err");
   run.signal(SIGTERM);
@@ -66,6 +69,19 @@ void every_axis_reaches(const char* profiles_file) {
               ids.size(), kAxes, list.c_str());
   EXPECT_TRUE(all) << "monitor saw the axes" << list << "\n" << ve::test::read_file(tmp + ".err");
   for (int id = 1; id <= kAxes; ++id) EXPECT_EQ(ids.count(id), 1u) << "axis " << id << " never reached the monitor";
+  // The writers of ve/diagnostics (one instance per axis) keep every axis too: at
+  // Fast DDS's default of 10 instances the diagnostics of the 11th axis on fail.
+  const std::string log = run.log();
+  for (int id = 1; id <= kAxes; ++id) {
+    const std::string axis = "axis 'a" + std::to_string(id) + "': ";
+    std::string summary;  // "axis 'aN': S samples estimated, P published, D diagnostics, ..."
+    for (auto at = log.find(axis); at != std::string::npos && summary.empty(); at = log.find(axis, at + 1)) {
+      const std::string line = log.substr(at, log.find('\n', at) - at);
+      if (line.find(" samples estimated") != std::string::npos) summary = line;
+    }
+    ASSERT_FALSE(summary.empty()) << axis << "\n" << log;
+    EXPECT_EQ(summary.find(" 0 diagnostics"), std::string::npos) << summary;
+  }
   std::remove((tmp + ".csv").c_str());
   std::remove((tmp + ".err").c_str());
   std::remove((tmp + ".run.log").c_str());

@@ -142,6 +142,7 @@ TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
     std::printf("[ note     ] only CPU %d is allowed here: pinned and unpinned threads look the same\n", last);
 
   // x pinned to the last allowed CPU at the lowest FIFO priority; y not named: not pinned.
+  // Their CPUs differ, so each has a sample thread of its own.
   ve::test::TempDir dir;
   const std::string machine = write_machine(
       dir, "realtime:\n  sample_thread_priority: 1\n  cpu_affinity: {x: [" + std::to_string(last) + "]}\n");
@@ -200,8 +201,10 @@ TEST(Realtime, WithoutPermissionWarnsOncePerSettingAndPublishes) {
   const std::string machine = write_machine(dir, "realtime:\n  sample_thread_priority: 50\n  lock_memory: true\n");
   ve::test::ChildProcess run(run_args(machine), (dir.path / "run.log").string(), "", drop_realtime_permissions);
   ASSERT_TRUE(run.started());
+  // x and y share one sample thread (realtime.sample_loop: shared), named after x and the one other axis.
   std::string x_task;
-  ASSERT_TRUE(ve::test::wait_until([&] { return !(x_task = find_task(run.pid(), "ve-x")).empty(); }, 30s)) << run.log();
+  ASSERT_TRUE(ve::test::wait_until([&] { return !(x_task = find_task(run.pid(), "ve-x+1")).empty(); }, 30s))
+      << run.log();
   const std::string status_path = "/proc/" + std::to_string(run.pid()) + "/status";
   if (has_capability(status_path, kCapSysNice) || has_capability(status_path, kCapIpcLock))
     GTEST_SKIP() << "cannot drop CAP_SYS_NICE / CAP_IPC_LOCK for the child here";

@@ -1,5 +1,6 @@
 // Scale benchmark: the CPU of `virtual-encoder run` with 1, 2, 4, 8 and 16 simulated axes
-// at 4 kHz (one sample thread per axis, as the product is built today), next to
+// at 4 kHz (all axes in one sample thread, `realtime.sample_loop: shared`; and again with
+// one sample thread per axis, `per_axis`, without a subscriber), next to
 //   - the pacing floor: threads that only wake at 4 kHz, paced as the product's sample
 //     threads (ve_pace_floor), one thread and one per axis;
 //   - a bare Fast DDS writer: one paced thread that writes N samples of
@@ -141,7 +142,8 @@ std::string loadavg() {
 }
 
 /// The first n axes of sim-8axis.yaml (n up to 16: the eight again with ids + 8).
-std::string write_machine(const fs::path& src_machine, int n, const fs::path& dir) {
+/// `sample_loop`: realtime.sample_loop of the machine ("" leaves the default, shared).
+std::string write_machine(const fs::path& src_machine, int n, const fs::path& dir, const std::string& sample_loop = "") {
   YAML::Node m = YAML::LoadFile(src_machine.string());
   YAML::Node axes = m["axes"];
   YAML::Node out_axes(YAML::NodeType::Sequence);
@@ -159,7 +161,8 @@ std::string write_machine(const fs::path& src_machine, int n, const fs::path& di
   }
   m["axes"] = out_axes;
   m["machine"] = "scale-" + std::to_string(n);
-  const fs::path file = dir / ("scale-" + std::to_string(n) + ".yaml");
+  if (!sample_loop.empty()) m["realtime"]["sample_loop"] = sample_loop;
+  const fs::path file = dir / ("scale-" + std::to_string(n) + (sample_loop.empty() ? "" : "-" + sample_loop) + ".yaml");
   std::ofstream(file) << m << "\n";
   return file.string();
 }
@@ -273,7 +276,7 @@ int main(int argc, char** argv) {
   const Measure floor1 = measure({VE_PACE_FLOOR, "--threads", "1"}, false, "floor-1");
   struct Row {
     int n;
-    Measure run, run_sub, bare, bare_sub, floor_n;
+    Measure run, run_sub, run_per_axis, bare, bare_sub, floor_n;
   };
   std::vector<Row> rows;
   for (int n : axis_counts) {
@@ -286,6 +289,10 @@ int main(int argc, char** argv) {
     const std::vector<std::string> bare = {VE_BARE_WRITER, d, ns};
     r.run = measure(run, false, "run-" + ns);
     r.run_sub = measure(run, true, "run-sub-" + ns);
+    const std::string per_axis = write_machine(src / "config/machines/sim-8axis.yaml", n, dir, "per_axis");
+    r.run_per_axis = measure({VE_BINARY, "run", "--config", per_axis, "--domain", d, "--duration", seconds,
+                              "--status-period", "60"},
+                             false, "run-per-axis-" + ns);
     r.bare = measure(bare, false, "bare-" + ns);
     r.bare_sub = measure(bare, true, "bare-sub-" + ns);
     r.floor_n = n == 1 ? floor1 : measure({VE_PACE_FLOOR, "--threads", ns}, false, "floor-" + ns);
@@ -303,7 +310,12 @@ int main(int argc, char** argv) {
      << "Every axis at " << static_cast<int>(rate) << " Hz; CPU is utime + stime of the publishing process over "
      << window << " s after " << warmup << " s of warm-up, in % of one core.\n\n"
      << "* `run`: `virtual-encoder run` on the first N axes of `config/machines/sim-8axis.yaml` (16: its eight twice),"
-        " one sample thread and one state writer per axis (the product today).\n"
+        " one state writer per axis; all axes in one sample thread (`realtime.sample_loop: shared`, the"
+        " default: one wake-up per tick for every axis).\n"
+     << "* `run`, thread per axis: the same with `realtime.sample_loop: per_axis`, one sample thread per axis"
+        " (the design before the shared loop), measured in the same run.\n"
+     << "* `run` / bare, `run` / floor: `run`'s CPU over the bare writer's and over the one-thread floor's, both"
+        " without a subscriber (the issue's targets: <= 1.5 and <= 3 at 8 axes).\n"
      << "* bare writer: `ve_bare_writer`, one thread paced like the product's that writes N samples of"
         " `ve::dds::EncoderState` per wake-up through one writer (profile `ve_state_writer`), nothing else.\n"
      << "* floor: `ve_pace_floor`, threads that only wake at 4 kHz, paced like the product's; one thread, and one"
@@ -316,22 +328,24 @@ int main(int argc, char** argv) {
      << "* published/s: the samples the publisher says it published (`run`'s last log line, the bare writer's"
         " END line), divided by its whole life from the exec (start-up included, so a little below N x 4000"
         " when it kept its rate), without / with the subscriber.\n\n"
-     << "| axes | `run` | `run` + sub | bare writer | bare writer + sub | floor, 1 thread | floor, N threads |"
-        " `run` us/sample | bare us/sample | published/s `run` | published/s bare | received/s `run` / bare |"
-        " subscriber CPU `run` / bare |\n"
-     << "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+     << "| axes | `run` | `run` + sub | `run`, thread per axis | bare writer | bare writer + sub | floor, 1 thread |"
+        " floor, N threads | `run` / bare | `run` / floor | `run` us/sample | bare us/sample | published/s `run` |"
+        " published/s bare | received/s `run` / bare | subscriber CPU `run` / bare |\n"
+     << "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
   auto pct = [](double v) {
     char b[32];
     std::snprintf(b, sizeof b, "%.1f %%", v);
     return std::string(b);
   };
   for (const auto& r : rows) {
-    char b[640];
+    char b[800];
     const double per = r.n * rate;
     std::snprintf(b, sizeof b,
-                  "| %d | %s | %s | %s | %s | %s | %s | %.1f | %.1f | %.0f / %.0f | %.0f / %.0f | %.0f / %.0f | %s / %s |\n",
-                  r.n, pct(r.run.cpu_pct).c_str(), pct(r.run_sub.cpu_pct).c_str(), pct(r.bare.cpu_pct).c_str(),
-                  pct(r.bare_sub.cpu_pct).c_str(), pct(floor1.cpu_pct).c_str(), pct(r.floor_n.cpu_pct).c_str(),
+                  "| %d | %s | %s | %s | %s | %s | %s | %s | %.2f | %.2f | %.1f | %.1f | %.0f / %.0f | %.0f / %.0f |"
+                  " %.0f / %.0f | %s / %s |\n",
+                  r.n, pct(r.run.cpu_pct).c_str(), pct(r.run_sub.cpu_pct).c_str(), pct(r.run_per_axis.cpu_pct).c_str(),
+                  pct(r.bare.cpu_pct).c_str(), pct(r.bare_sub.cpu_pct).c_str(), pct(floor1.cpu_pct).c_str(),
+                  pct(r.floor_n.cpu_pct).c_str(), r.run.cpu_pct / r.bare.cpu_pct, r.run.cpu_pct / floor1.cpu_pct,
                   r.run.cpu_pct * 1e4 / per, r.bare.cpu_pct * 1e4 / per, r.run.pub_per_s, r.run_sub.pub_per_s,
                   r.bare.pub_per_s, r.bare_sub.pub_per_s, r.run_sub.rx_per_s, r.bare_sub.rx_per_s,
                   pct(r.run_sub.sub_cpu_pct).c_str(), pct(r.bare_sub.sub_cpu_pct).c_str());

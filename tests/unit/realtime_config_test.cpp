@@ -106,6 +106,21 @@ TEST(RealtimeConfig, PerAxisCpuLists) {
   EXPECT_TRUE(c.any());
 }
 
+TEST(RealtimeConfig, SampleLoopSharedByDefaultPerAxisOnRequest) {
+  RtTempDir dir;
+  const auto def = load_machine_file(dir.machine(""));
+  ASSERT_TRUE(def.ok()) << to_string(def.errors);
+  EXPECT_EQ(def.config.realtime.sample_loop, RealtimeConfig::SampleLoop::shared);
+  EXPECT_FALSE(def.config.realtime.any()) << "the grouping of the sample threads is no privileged setting";
+  const auto per_axis = load_machine_file(dir.machine("realtime:\n  sample_loop: per_axis\n"));
+  ASSERT_TRUE(per_axis.ok()) << to_string(per_axis.errors);
+  EXPECT_EQ(per_axis.config.realtime.sample_loop, RealtimeConfig::SampleLoop::per_axis);
+  const auto path = dir.machine("realtime:\n  sample_loop: per_cpu\n");
+  const auto bad = load_machine_file(path);
+  ASSERT_EQ(bad.errors.size(), 1u) << to_string(bad.errors);
+  expect_error(bad, path, 2, 16, "realtime.sample_loop", "is not one of");
+}
+
 TEST(RealtimeConfig, PriorityOutOfRange) {
   RtTempDir dir;
   const auto path = dir.machine("realtime:\n  sample_thread_priority: 100\n");

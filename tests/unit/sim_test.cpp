@@ -13,6 +13,7 @@
 
 #include "core/motor.hpp"
 #include "sim/motion_profile.hpp"
+#include "pacing.hpp"
 #include "sim/sim_source.hpp"
 
 namespace {
@@ -1030,6 +1031,59 @@ SimConfig with_silence(SimConfig cfg, double start_s, double end_s) {
   f.end_s = end_s;
   cfg.faults[cfg.fault_count++] = f;
   return cfg;
+}
+
+// ---- a shared clock (several sources read from one sample thread)
+
+TEST(SimSource, SharedClockSaysWhenEachSampleIsDueAndReadDoesNotWait) {
+  MotorConfig motor;  // 4000 Hz
+  auto cfg = offline(Kind::multisine);
+  cfg.realtime = true;
+  SimSource a(motor, cfg), b(motor, cfg);
+  // Started 1 s ago: the first 4000 samples are due already; none is waited for.
+  const std::int64_t start = ve::drivers::monotonic_ns() - 1000000000LL;
+  ASSERT_TRUE(a.share_clock(start));
+  ASSERT_TRUE(b.share_clock(start));
+  EXPECT_FALSE(a.share_clock(start)) << "a clock is started once";
+  RawSample s;
+  for (std::uint64_t k = 0; k < 100; ++k) {
+    EXPECT_EQ(a.next_due_ns(), start + a.sample_time_ns(k));
+    EXPECT_EQ(b.next_due_ns(), a.next_due_ns()) << "one tick for both";
+    ASSERT_EQ(a.read(s), ReadStatus::ok);
+    EXPECT_EQ(s.t_ns, static_cast<std::int64_t>(k) * 250000);
+    ASSERT_EQ(b.read(s), ReadStatus::ok);
+  }
+  // Not real time, or started already: the source paces itself (or not at all).
+  SimSource offline_source(motor, offline(Kind::multisine));
+  EXPECT_FALSE(offline_source.share_clock(start));
+  EXPECT_EQ(offline_source.next_due_ns(), 0);
+  a.stop();
+  EXPECT_EQ(a.next_due_ns(), 0) << "stopped: read() returns at once";
+  EXPECT_EQ(a.read(s), ReadStatus::stopped);
+}
+
+TEST(SimSource, SharedClockSilentNodeTimesOutWithoutWaiting) {
+  MotorConfig motor;  // 4000 Hz
+  auto cfg = offline(Kind::multisine);
+  cfg.realtime = true;
+  ve::sim::FaultConfig f;
+  f.kind = ve::sim::FaultConfig::Kind::no_samples;
+  f.start_s = 0.001;  // samples 4 .. 39999 are never sent
+  f.end_s = 10.0;
+  cfg.faults[cfg.fault_count++] = f;
+  SimSource src(motor, cfg);
+  const std::int64_t start = ve::drivers::monotonic_ns() - 1500000;  // samples 0..6 due
+  ASSERT_TRUE(src.share_clock(start));
+  RawSample s;
+  for (int k = 0; k < 4; ++k) ASSERT_EQ(src.read(s), ReadStatus::ok);
+  // The silence: a timeout at once, the next one a read timeout later (the sample after
+  // the silence is due much later), as a silent CAN node's driver would report it.
+  const std::int64_t before = ve::drivers::monotonic_ns();
+  EXPECT_EQ(src.read(s), ReadStatus::timeout);
+  const std::int64_t next = src.next_due_ns();
+  EXPECT_GT(next, before);
+  EXPECT_LE(next - before, ve::sim::kSilentReadTimeoutNs + (ve::drivers::monotonic_ns() - before));
+  EXPECT_EQ(src.samples_read(), 4u);
 }
 
 TEST(SimSource, SilentNodeLosesTheSamplesOfItsWindow) {
