@@ -122,7 +122,9 @@ std::size_t check_axis(int id, const std::vector<Row>& rows, double rate_hz, dou
   std::printf("[ figures  ] axis %d: %zu rows, sequences %llu..%llu, %zu missing, source_time spacing %.1f us "
               "(period %.1f us)\n",
               id, rows.size(), rows.front().sequence, rows.back().sequence, missing, mean_spacing_us, 1e6 / rate_hz);
-  EXPECT_LE(static_cast<double>(missing), max_gap_share * span) << "axis " << id;
+  // How many the best-effort stream lost is a real-time figure: judged at real speed only
+  // (speed.hpp; under a sanitizer the loop falls behind its 4 kHz and skips).
+  if (ve::test::kRealTimeFigures) EXPECT_LE(static_cast<double>(missing), max_gap_share * span) << "axis " << id;
   return missing;
 }
 
