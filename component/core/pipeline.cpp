@@ -10,8 +10,6 @@
 namespace ve::core {
 
 namespace {
-// Travel after which a sample counts as taken at a new place, for the adaptation.
-constexpr double kNewPlaceShareOfPitch = HallAdaptation::kNewPlaceShareOfPitch;
 // A disagreement among the Hall sensors is averaged over this long for the
 // published sigma, and held (decaying) this long for the blame test.
 constexpr double kDisagreementAverageS = 0.25;
@@ -388,7 +386,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
         // information in proportion to the travel since (a 200th of a magnet
         // period counts as a new place).
         const double share =
-            std::min(1.0, speed * kf_.period_s() / (kNewPlaceShareOfPitch * cfg_.motor.magnet_pitch_m));
+            std::min(1.0, speed * kf_.period_s() / (HallAdaptation::kNewPlaceShareOfPitch * cfg_.motor.magnet_pitch_m));
         adapt_.update_common(fix.common_gain, fix.common_gain_variance, share);
         // An outlier nobody can be blamed for (a drift) is exactly what must learn.
         adapt_.update(sample, hall_.table(), guess, common_mode, use & ~(ambiguous ? 0u : outlier), faulty_mask_,
