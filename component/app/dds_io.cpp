@@ -386,6 +386,10 @@ bool env_flag(const char* name) {
 bool DdsOptions::type_information_from_env() { return env_flag("VE_DDS_TYPE_INFORMATION"); }
 bool DdsOptions::type_object_from_env() { return env_flag("VE_DDS_TYPE_OBJECT"); }
 
+namespace {
+
+/// Creates Fast DDS 2.9's type registries and fills them with the product's types, once per
+/// process (see DdsContext::create, which calls it before its participant exists).
 void prime_type_registries() {
   static std::once_flag primed;
   std::call_once(primed, [] {
@@ -395,6 +399,8 @@ void prime_type_registries() {
     registerVirtualEncoderTypes();
   });
 }
+
+}  // namespace
 
 std::unique_ptr<DdsContext> DdsContext::create(const DdsOptions& options, std::string& error) {
   route_fastdds_log();  // before the factory, which may already parse a profiles file

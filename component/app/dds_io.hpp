@@ -102,12 +102,6 @@ struct DdsOptions {
   bool receive_over_shm = false;
 };
 
-/// Creates Fast DDS 2.9's type registries and fills them with the product's types, once per
-/// process. DdsContext::create calls it before its participant exists: a peer's announced
-/// TypeObject is built into these registries on the participant's receive threads, and
-/// neither their lazy creation nor their first filling is safe against that.
-void prime_type_registries();
-
 /// Owns the participant and the topics. Deleting it deletes every entity it
 /// made, in order; keep it out of static storage.
 class DdsContext {
