@@ -407,6 +407,7 @@ void group_loop(SampleGroup& group, StateWriter& writer, DiagnosticsWriter& diag
   }
   const std::size_t n = runners.size();
   std::vector<char> done(n, 0);
+  std::vector<std::int64_t> due(n, 0);  // each source's next_due_ns() of this tick
   std::size_t active = n;
   const std::int64_t start_ns = drivers::monotonic_ns();
   for (auto& r : runners)
@@ -414,12 +415,15 @@ void group_loop(SampleGroup& group, StateWriter& writer, DiagnosticsWriter& diag
       spdlog::warn("sample thread '{}': a source cannot share the group's clock; it paces itself", group.thread_name);
   while (active > 0) {
     std::int64_t due_ns = INT64_MAX;
-    for (std::size_t i = 0; i < n; ++i)
-      if (!done[i]) due_ns = std::min(due_ns, runners[i]->source().next_due_ns());
+    for (std::size_t i = 0; i < n; ++i) {
+      if (done[i]) continue;
+      due[i] = runners[i]->source().next_due_ns();  // unchanged by the wait below: nothing reads meanwhile
+      due_ns = std::min(due_ns, due[i]);
+    }
     if (!drivers::sleep_until(due_ns, stopping)) break;  // shutdown
     const std::int64_t now_ns = drivers::monotonic_ns();
     for (std::size_t i = 0; i < n; ++i) {
-      if (done[i] || runners[i]->source().next_due_ns() > now_ns) continue;
+      if (done[i] || due[i] > now_ns) continue;
       if (!runners[i]->step()) {
         done[i] = 1;
         --active;
