@@ -40,9 +40,10 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
   line("  accelerometer%s: scale %.5f, bias %+.4f m/s^2, delay %.1f us, fit residual %.4f m/s^2 RMS\n",
        r.frame_accelerometer_used ? " (minus the frame accelerometer)" : "", r.accel_scale, r.accel_bias_mps2,
        r.accel_delay_s * 1e6, r.accel_fit_residual_mps2);
-  line("  Hall position vs %s in fast motion: %.3f um RMS compensated (%.3f um without)\n",
+  line("  Hall position vs %s in fast motion: %.3f um RMS compensated (%.3f um without); "
+       "the fixes' own noise %.3f um RMS, beyond it %.3f um\n",
        self != nullptr ? "the self-made estimate (a consistency check)" : "reference", r.position_residual_um,
-       r.position_residual_uncompensated_um);
+       r.position_residual_uncompensated_um, r.position_noise_um, r.position_residual_beyond_noise_um);
   if (self != nullptr) {
     const auto& s = *self;
     line("Without a reference (the Halls, the accelerometer and the nominal pitch)\n");

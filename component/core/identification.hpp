@@ -88,6 +88,11 @@ struct IdentificationReport {
   double table_residual_mv = 0.0;        ///< RMS of the readings about the final table (sweep, in range)
   double position_residual_um = 0.0;     ///< RMS of the Hall position about the reference (fast motion, compensated)
   double position_residual_uncompensated_um = 0.0;  ///< the same without delay and coil-field compensation
+  /// RMS of the fixes' own σ over the same samples (the sensors' noise and quantisation).
+  double position_noise_um = 0.0;
+  /// The compensated residual beyond that noise (0 when the residual is within it): what
+  /// the delay and coil-field compensation left. The verdict judges this one.
+  double position_residual_beyond_noise_um = 0.0;
   bool good = false;
   std::vector<std::string> problems;     ///< why the result is not good, in words a commissioning engineer acts on
   IdentificationCurves curves;           ///< for the report's plots

@@ -118,6 +118,9 @@ struct CalibrationOutcome {
   std::vector<std::string> problems;
   std::string error;
   double seconds = 0.0;  ///< identification's compute time (the recording excluded)
+  /// The report's fast-motion Hall position residual, the fixes' own noise and the
+  /// residual beyond it [um].
+  double fast_residual_um = 0.0, fast_noise_um = 0.0, fast_beyond_noise_um = 0.0;
   /// Where the calibration's position 0 lies in the simulator's frame: 0 with a
   /// ruler (the simulator is the ruler); without one, home (a track feature).
   double zero_m = 0.0;
@@ -164,6 +167,9 @@ inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor&
     o.ok = core::identify_with_reference(p.datasheet, segments, {}, o.cal, rep, o.error);
     o.good = o.ok && rep.good;
     o.problems = rep.problems;
+    o.fast_residual_um = rep.position_residual_um;
+    o.fast_noise_um = rep.position_noise_um;
+    o.fast_beyond_noise_um = rep.position_residual_beyond_noise_um;
   } else {
     for (auto& s : segments) s.reference_m.assign(s.reference_m.size(), std::nan(""));
     core::SelfCalibrationConfig cfg;
@@ -172,6 +178,9 @@ inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor&
     o.ok = core::identify_without_reference(p.datasheet, segments, cfg, o.cal, rep, o.error);
     o.good = o.ok && rep.identification.good;
     o.problems = rep.identification.problems;
+    o.fast_residual_um = rep.identification.position_residual_um;
+    o.fast_noise_um = rep.identification.position_noise_um;
+    o.fast_beyond_noise_um = rep.identification.position_residual_beyond_noise_um;
     if (o.ok) o.zero_m = home_in_sim_frame(p.hardware, p.sim, rep);
   }
   o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
