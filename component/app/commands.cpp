@@ -150,8 +150,9 @@ struct AxisLoop {
   std::atomic<double> position_m{0}, velocity_mps{0}, position_std_m{0}, velocity_std_mps{0};
   std::atomic<double> innovation_rms{0}, step_max_us{0};
   std::atomic<std::uint32_t> status{0};
-  // CiA 406 node of this axis (`canopen:`), fed through `canopen_state`; null without one.
-  canopen::SnapshotBox canopen_state;
+  // CiA 406 node of this axis (`canopen:`), fed through `canopen_state` (the last
+  // 1,024 estimates, 57 kB: made only for an axis with a node); both null without one.
+  std::unique_ptr<canopen::SnapshotBox> canopen_state;
   std::unique_ptr<CanopenNodeIo> canopen;
 };
 
@@ -271,10 +272,10 @@ class AxisRunner {
   void process() {
     AxisLoop& loop = loop_;
     const core::RawSample& sample = sample_;
-    if (loop.canopen) loop.canopen_state.claim();
+    if (loop.canopen) loop.canopen_state->claim();
     const std::int64_t arrival_ns = clock_ns(CLOCK_MONOTONIC);
     const std::int64_t handover_rt_ns = clock_ns(CLOCK_REALTIME);
-    if (loop.canopen) loop.canopen_state.begin(handover_rt_ns);  // a SYNC after this instant waits for it
+    if (loop.canopen) loop.canopen_state->begin(handover_rt_ns);  // a SYNC after this instant waits for it
     const std::int64_t sample_gap_ns = last_arrival_ns_ != 0 ? sample.t_ns - last_sample_t_ns_ : 0;
     if (silent_ || sample_gap_ns >= kSilenceLoggedNs) {
       silent_ = false;
@@ -305,7 +306,7 @@ class AxisRunner {
       snap.velocity_mps = est.velocity_mps;
       snap.acceleration_mps2 = est.acceleration_mps2;
       snap.status = est.status;
-      loop.canopen_state.publish(snap);
+      loop.canopen_state->publish(snap);
     }
     if (--until_publish_ == 0) {  // output.publish_divider: every Nth estimate is published
       until_publish_ = publish_divider_;
@@ -565,7 +566,8 @@ int run_command(const RunOptions& options) {
     }
     use_kept_position(loop->setup);
     if (axis.canopen.enabled) {
-      loop->canopen = std::make_unique<CanopenNodeIo>(axis, loop->canopen_state);
+      loop->canopen_state = std::make_unique<canopen::SnapshotBox>();
+      loop->canopen = std::make_unique<CanopenNodeIo>(axis, *loop->canopen_state);
       if (!loop->canopen->ok()) {
         std::fprintf(stderr, "%s\n", loop->canopen->last_error().c_str());
         return 2;

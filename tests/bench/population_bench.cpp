@@ -260,9 +260,10 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "[%2d/%d] %s\n", i + 1, o.motors, r.motor.summary().c_str());
         for (int ruler = 0; ruler < 2; ++ruler) {
           const auto& c = r.cal[ruler];
-          std::fprintf(stderr, "        %s: %s in %.2f s (fast motion %.2f um, fixes' noise %.2f um, beyond %.2f um)%s%s\n",
+          std::fprintf(stderr, "        %s: %s in %.2f s (fast motion %.2f um, fixes' noise %.2f um, beyond %.2f um; table %.2f mV; passes %.2f um)%s%s\n",
                        ruler == 0 ? "ruler   " : "no ruler", !c.ok ? "FAILED" : c.good ? "good" : "POOR", c.seconds,
-                       c.fast_residual_um, c.fast_noise_um, c.fast_beyond_noise_um, c.error.empty() ? "" : ": ",
+                       c.fast_residual_um, c.fast_noise_um, c.fast_beyond_noise_um, c.table_residual_mv,
+                       c.pass_line_residual_um, c.error.empty() ? "" : ": ",
                        c.error.c_str());
           for (const auto& p : c.problems) std::fprintf(stderr, "          problem: %s\n", p.c_str());
           for (int k = 0; k < kConditionCount; ++k) {

@@ -121,6 +121,9 @@ struct CalibrationOutcome {
   /// The report's fast-motion Hall position residual, the fixes' own noise and the
   /// residual beyond it [um].
   double fast_residual_um = 0.0, fast_noise_um = 0.0, fast_beyond_noise_um = 0.0;
+  /// The readings' scatter about the table [mV]; without a ruler also the Hall
+  /// positions' straight-line residual along the slow passes [um].
+  double table_residual_mv = 0.0, pass_line_residual_um = 0.0;
   /// Where the calibration's position 0 lies in the simulator's frame: 0 with a
   /// ruler (the simulator is the ruler); without one, home (a track feature).
   double zero_m = 0.0;
@@ -170,6 +173,7 @@ inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor&
     o.fast_residual_um = rep.position_residual_um;
     o.fast_noise_um = rep.position_noise_um;
     o.fast_beyond_noise_um = rep.position_residual_beyond_noise_um;
+    o.table_residual_mv = rep.table_residual_mv;
   } else {
     for (auto& s : segments) s.reference_m.assign(s.reference_m.size(), std::nan(""));
     core::SelfCalibrationConfig cfg;
@@ -181,6 +185,8 @@ inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor&
     o.fast_residual_um = rep.identification.position_residual_um;
     o.fast_noise_um = rep.identification.position_noise_um;
     o.fast_beyond_noise_um = rep.identification.position_residual_beyond_noise_um;
+    o.table_residual_mv = rep.identification.table_residual_mv;
+    o.pass_line_residual_um = rep.pass_line_residual_m * 1e6;
     if (o.ok) o.zero_m = home_in_sim_frame(p.hardware, p.sim, rep);
   }
   o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
