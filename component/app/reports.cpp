@@ -42,7 +42,8 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
        r.accel_delay_s * 1e6, r.accel_fit_residual_mps2);
   line("  Hall position vs %s in fast motion: %.3f um RMS compensated (%.3f um without); "
        "the fixes' own noise %.3f um RMS, beyond it %.3f um\n",
-       self != nullptr ? "the self-made estimate (a consistency check)" : "reference", r.position_residual_um,
+       self != nullptr ? "the self-made estimate (made of them: a consistency figure, not judged)" : "reference",
+       r.position_residual_um,
        r.position_residual_uncompensated_um, r.position_noise_um, r.position_residual_beyond_noise_um);
   if (self != nullptr) {
     const auto& s = *self;
@@ -71,6 +72,14 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
       geo += buf;
     }
     line("  sensor positions relative to sensor 0: %s mm\n", geo.c_str());
+    if (cal.model.trusted_span_known())
+      line("  the slow passes made the table from %.3f to %.3f mm; beyond, where the carriage turned, it rests on the "
+           "accelerometer's bridges and is good to %.1f um (1 sigma, the worst quarter pitch): sigma includes it and "
+           "the position is never VALID there (a ruler, or slow passes reaching further, removes it)\n",
+           cal.model.table_trusted_from_m * 1e3, cal.model.table_trusted_to_m * 1e3,
+           cal.model.table_outside_std_m * 1e6);
+    line("  iterations: %zu, the last moved the estimate %.3f um RMS (%s)\n", s.iterations.size(),
+         s.last_change_m * 1e6, s.converged ? "settled" : "going back and forth, not settled");
   }
   if (!plots.empty()) {
     line("Plots (SVG, beside this report)\n");

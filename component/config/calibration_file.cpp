@@ -207,6 +207,20 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     model("temperature_c", cal.model.temperature_c, -60.0, 200.0, "deg C");
     // Optional: only from a calibration without a ruler.
     model("track_scale_std", cal.model.track_scale_std, 0.0, 0.01, "");
+    // Optional, together: only from a calibration without a ruler.
+    const bool from = m.get("table_trusted_from_m", cal.model.table_trusted_from_m);
+    const bool to = m.get("table_trusted_to_m", cal.model.table_trusted_to_m);
+    if (from != to) {
+      m.value(from ? "table_trusted_from_m" : "table_trusted_to_m")
+          .error(std::string("needs sensor_model.") + (from ? "table_trusted_to_m" : "table_trusted_from_m") +
+                 " too (the stretch of the table its slow passes made)");
+    } else if (from) {
+      model("table_trusted_from_m", cal.model.table_trusted_from_m, -100.0, 100.0, "m");
+      model("table_trusted_to_m", cal.model.table_trusted_to_m, -100.0, 100.0, "m");
+      if (!(cal.model.table_trusted_from_m < cal.model.table_trusted_to_m))
+        m.value("table_trusted_to_m").error("must be above sensor_model.table_trusted_from_m");
+    }
+    model("table_outside_std_m", cal.model.table_outside_std_m, 0.0, 0.01, "m");
   }
   const Value table = root.required("table");
   if (table.present()) read_table(table.as_map(), cal.table, info.hall_count, expected);
@@ -369,6 +383,13 @@ std::string format_calibration(const core::Calibration& cal) {
     if (m.track_scale_std > 0.0) {
       out += "  track_scale_std: " + schema::format_number(m.track_scale_std) +
              "   # no ruler: one sigma of the table's scale; sigma grows by it per m from home\n";
+    }
+    if (m.trusted_span_known()) {
+      out += "  table_trusted_from_m: " + schema::format_number(m.table_trusted_from_m) +
+             "   # no ruler: the slow passes made the table from here\n";
+      out += "  table_trusted_to_m: " + schema::format_number(m.table_trusted_to_m) + "   # to here\n";
+      out += "  table_outside_std_m: " + schema::format_number(m.table_outside_std_m) +
+             "   # beyond (the turnarounds) the table is good to this; never VALID there\n";
     }
   }
   out += "table:\n";

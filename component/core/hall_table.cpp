@@ -73,6 +73,11 @@ std::string calibration_checksum(const HallTable& table, const SensorModel& mode
   // Only when recorded, so that files without it keep their checksum.
   if (std::isfinite(model.temperature_c)) mix_rounded(model.temperature_c, 1e-3);
   if (model.track_scale_std > 0.0) mix_rounded(model.track_scale_std, 1e-10);
+  if (model.trusted_span_known()) {
+    mix_rounded(model.table_trusted_from_m, 1e-9);
+    mix_rounded(model.table_trusted_to_m, 1e-9);
+    mix_rounded(model.table_outside_std_m, 1e-10);
+  }
   static const char* kHex = "0123456789abcdef";
   std::string out(16, '0');
   for (int i = 15; i >= 0; --i) {

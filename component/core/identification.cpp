@@ -529,12 +529,15 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
       for (std::size_t i = 0; i < seg.samples.size(); i += 7) {  // a subsample is plenty
         if (!kin[g].valid[i] || !is_sweep(kin[g].v[i], kin[g].a[i])) continue;
         const double xh = seg.reference_m[i] - kin[g].v[i] * out.model.hall_delay_s;
+        const bool judged = xh >= cfg.judged_from_m && xh <= cfg.judged_to_m;
         for (int s = 0; s < nh; ++s) {
           const double y = seg.samples[i].hall_v[s];
           if (!(seg.samples[i].hall_valid_mask >> s & 1u) || !in_range_reading(motor, y)) continue;
           const double r = y - table.value(s, xh);
-          sum += r * r;
-          ++n;
+          if (judged) {
+            sum += r * r;
+            ++n;
+          }
           const long b = bin_of(xh);
           if (b >= 0) {
             bin_sum[static_cast<std::size_t>(b)] += r * r;
@@ -558,6 +561,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
       for (std::size_t i = 0; i < seg.samples.size(); ++i) {
         if (!kin[g].valid[i] || std::abs(kin[g].a[i]) < cfg.dynamic_min_accel_mps2) continue;
         const double x = seg.reference_m[i];
+        if (!(x >= cfg.judged_from_m && x <= cfg.judged_to_m)) continue;
         const double xh = x - kin[g].v[i] * out.model.hall_delay_s;
         const HallFix c = array.solve(seg.samples[i], xh, out.model.coil_field_v_per_mps2 * kin[g].a[i]);
         const HallFix u = array.solve(seg.samples[i], x, 0.0);
@@ -598,7 +602,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     // What the compensation leaves is judged beyond the fixes' own noise: a motor with
     // coarse converters or few sensors has fixes a micrometre or more apart from
     // sample to sample, which the filter averages, and that is not a calibration fault.
-    if (rep.position_residual_beyond_noise_um > 1.0)
+    if (cfg.fast_reference_independent && rep.position_residual_beyond_noise_um > 1.0)
       rep.problems.push_back(fmt("in fast motion the Hall position stays %.2f um RMS off the reference after "
                                  "compensation, %.2f um beyond what the sensors' noise makes of a single fix "
                                  "(%.2f um): more than the 1 um this calibration aims for; check the Hall delay and "

@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,15 @@ struct IdentificationConfig {
   /// the values one magnet period inwards instead of failing (calibration without
   /// a reference: its own scale may end the sweep a few um short of the grid) [m].
   double fill_uncovered_ends_m = 0.0;
+  /// The verdict's residuals (readings about the table, Hall position in fast motion)
+  /// count only positions in [from, to]: without a ruler, where the slow passes made
+  /// the reference (the turnarounds beyond are judged apart) [m].
+  double judged_from_m = -std::numeric_limits<double>::infinity();
+  double judged_to_m = std::numeric_limits<double>::infinity();
+  /// The reference in fast motion is independent of the Halls (a ruler). Without
+  /// one the self-made reference there is made of these Hall positions, and their
+  /// residual against it is reported as a consistency figure, not judged.
+  bool fast_reference_independent = true;
   /// Search for a frame vibration in the accelerometer: frequency range [Hz], the
   /// stretch of recording used [s], and how far above the spectrum's median (and
   /// above an absolute level) a line must stand to count.

@@ -69,6 +69,16 @@ struct SensorModel {
   /// scale uncertain (self_calibration.hpp); the position's sigma grows by this
   /// times the distance from position 0 (home).
   double track_scale_std = 0.0;
+  /// Calibration without a ruler: the stretch of the table made from the slow passes,
+  /// in the table's frame [m] (NaN: the whole table, as with a ruler). Beyond it, within
+  /// about a magnet period of either end of the sweep, the carriage was turning: the
+  /// table there rests on the accelerometer's bridge between the passes, good only to
+  /// table_outside_std_m (one sigma, the largest the bridges' disagreement shows). The
+  /// position's sigma says so there, and it is never VALID.
+  double table_trusted_from_m = std::numeric_limits<double>::quiet_NaN();
+  double table_trusted_to_m = std::numeric_limits<double>::quiet_NaN();
+  double table_outside_std_m = 0.0;
+  bool trusted_span_known() const { return std::isfinite(table_trusted_from_m) && std::isfinite(table_trusted_to_m); }
 };
 
 /// Block K tuning (the paper's Kalman filter on [x, v, a], extended).

@@ -453,8 +453,13 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // Without a ruler the table's scale is the magnet track's own, known to
   // track_scale_std: an error in proportion to the distance from home (position 0).
   const double scale_m = cfg_.sensors.track_scale_std * out_.position_m;
+  // Without a ruler, beyond the calibration's slow passes (where it turned) the table
+  // rests on the accelerometer's bridges, known to table_outside_std_m only.
+  const bool beyond_passes = cfg_.sensors.trusted_span_known() && (out_.position_m < cfg_.sensors.table_trusted_from_m ||
+                                                                    out_.position_m > cfg_.sensors.table_trusted_to_m);
+  const double beyond_m = beyond_passes ? cfg_.sensors.table_outside_std_m : 0.0;
   out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + drift_var_m2_ +
-                                  scale_m * scale_m);
+                                  scale_m * scale_m + beyond_m * beyond_m);
   const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
@@ -486,7 +491,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   if (initialised_ && fc.valid_confidence_sigma * out_.position_std_m < fc.valid_position_accuracy_m &&
       fc.valid_confidence_sigma * out_.velocity_std_mps < fc.valid_velocity_accuracy_mps &&
       without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_ &&
-      temperature_checked)
+      temperature_checked && !beyond_passes)
     status |= status::kValid;
   out_.status = status;
   return out_;

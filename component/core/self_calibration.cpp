@@ -447,6 +447,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
                                 std::string& error) {
   rep = SelfCalibrationReport{};
   IdentificationConfig ic = cfg.identification;
+  ic.fast_reference_independent = false;  // the fast motion's reference is made of the Hall positions
   // In fast motion the self-made position carries small errors at the magnet
   // frequency (hundreds of Hz), which a short derivative window would pass as
   // acceleration and so bias the accelerometer's scale low: differentiate over
@@ -496,6 +497,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   double coil_found = std::numeric_limits<double>::quiet_NaN();
   double sweep_lo = 0.0;       // the lowest position of the sweep (from its start)
   double sweep_pass_lo = 0.0;  // the lowest position of its slow passes
+  double trusted_lo = 0.0, trusted_hi = 0.0;  // where the passes of both directions made the reference
   std::vector<std::vector<double>> prev_xr(ng);  // the last iteration's estimate (convergence)
   double change_m = std::numeric_limits<double>::infinity(), previous_scale = 1.0, hall_delay_used = hall_delay;
   bool converged = false;
@@ -725,7 +727,21 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       // Where the slow passes (the lines, not the accelerometer's bridges) begin.
       sweep_pass_lo = hi;
       for (const auto& p : passes[sweep_segment]) sweep_pass_lo = std::min({sweep_pass_lo, xr[p.begin], xr[p.end - 1]});
+      // Where the passes made every slow sample of the table: each direction's passes
+      // reach so far (beyond, one direction's samples there come from a turnaround).
+      double lo_dir[2] = {hi, hi}, hi_dir[2] = {lo, lo};
+      for (const auto& p : passes[sweep_segment]) {
+        const int d = p.v > 0.0 ? 0 : 1;
+        lo_dir[d] = std::min({lo_dir[d], xr[p.begin], xr[p.end - 1]});
+        hi_dir[d] = std::max({hi_dir[d], xr[p.begin], xr[p.end - 1]});
+      }
+      trusted_lo = std::max(lo_dir[0], lo_dir[1]);
+      trusted_hi = std::min(hi_dir[0], hi_dir[1]);
     }
+    // The verdict judges the readings where the passes made the reference; the
+    // turnarounds beyond are judged apart (table_outside_std_m, below).
+    ic.judged_from_m = trusted_lo;
+    ic.judged_to_m = trusted_hi;
     rep.swept_m = hi - lo;
     rep.periods = static_cast<int>(std::floor(rep.swept_m / motor.magnet_pitch_m + 1e-6));
 
@@ -840,6 +856,43 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   }
 
   hall_delay = hall_delay_used;
+  // Beyond the slow passes the carriage turned, and the reference there is the
+  // accelerometer's bridge between two passes: the table made from it is as good as
+  // the bridges agree. Each bridged sample's Hall fix on the final table against its
+  // bridge, per quarter pitch, beyond the fixes' own noise; the worst quarter pitch
+  // is what the table outside the passes is taken to be good to (a lower bound: what
+  // every bridge got wrong alike does not show).
+  double outside_std_m = 0.0;
+  {
+    const HallArray array(motor, cal.table);
+    const double bin_m = motor.magnet_pitch_m / 4.0;
+    const double t_lo = cal.table.start_m, t_hi = cal.table.start_m + cal.table.step_m * (cal.table.points - 1);
+    std::vector<double> sq, var;
+    std::vector<long> cnt;
+    const auto bin_of = [&](double x) { return static_cast<std::size_t>(std::floor((x - t_lo) / bin_m)); };
+    sq.assign(bin_of(t_hi) + 1, 0.0);
+    var.assign(sq.size(), 0.0);
+    cnt.assign(sq.size(), 0);
+    for (std::size_t g = 0; g < ng; ++g) {
+      if (bridged[g].empty()) continue;
+      const auto& xr = work[g].reference_m;
+      differentiate(xr, ts[g], ic.derivative_half_window, v, a, valid);
+      for (std::size_t i = 0; i < xr.size(); i += 3) {
+        if (!bridged[g][i] || !valid[i] || (xr[i] >= trusted_lo && xr[i] <= trusted_hi)) continue;
+        const double x = xr[i] - v[i] * hall_delay;
+        if (!(x > t_lo && x < t_hi)) continue;
+        const HallFix f = array.solve(work[g].samples[i], x, coil * accel[g][i]);
+        if (!f.ok) continue;
+        const std::size_t b = std::min(bin_of(x), sq.size() - 1);
+        sq[b] += (f.position_m - x) * (f.position_m - x);
+        var[b] += f.variance_m2;
+        ++cnt[b];
+      }
+    }
+    for (std::size_t b = 0; b < sq.size(); ++b)
+      if (cnt[b] >= 10) outside_std_m = std::max(outside_std_m, std::sqrt(std::max(0.0, (sq[b] - var[b]) / cnt[b])));
+    rep.outside_passes_std_m = outside_std_m;
+  }
   rep.converged = converged;
   rep.last_change_m = change_m;
   out = cal;
@@ -854,12 +907,13 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   // has its zero where the carriage stood when the sweep's recording started,
   // reached only through the accelerometer bridged back from the first slow pass.
   {
-    double home = 0.0, rising = 0.0, falling = 0.0;
+    double home = 0.0, rising = 0.0, falling = 0.0, home_shift = 0.0;
     // The first half-wave wholly within the slow passes: the table is made from
     // the lines there, not from the accelerometer bridged to the recording's start.
     const double from = std::max(sweep_lo + 0.25 * motor.magnet_pitch_m, sweep_pass_lo);
     if (table_home(out.table, from, home, rising, falling)) {
       out.table.start_m -= home;
+      home_shift = home;
       rep.home_from_sweep_start_m = home;
       rep.home_rising_m = rising - home;
       rep.home_falling_m = falling - home;
@@ -873,6 +927,9 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       rep.zero_definition = "position 0 is where the carriage stood at the start of the sweep (no home found)";
       r.problems.push_back("sensor 0's table has no whole positive half-wave to home on");
     }
+    out.model.table_trusted_from_m = trusted_lo - home_shift;
+    out.model.table_trusted_to_m = trusted_hi - home_shift;
+    out.model.table_outside_std_m = std::min(outside_std_m, 0.01);
   }
   // The position residual in fast motion is against the self-made estimate, which
   // came from these Halls: it checks consistency, not accuracy.
@@ -898,7 +955,11 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         "taken as 0; give the Halls' delay from the front end's design (--hall-delay-us) or the accelerometer's from "
         "its data sheet (--accel-delay-us)");
   }
-  if (!rep.converged) {
+  // Iterations that stop short of settling but move the estimate by a fraction of
+  // a micrometre only go back and forth between neighbouring solutions (a pass's
+  // end moving by a sample, say): the result is as good as either. More than that,
+  // or a scale still moving, is a problem.
+  if (!rep.converged && (rep.last_change_m > cfg.unsettled_limit_m || std::abs(previous_scale_change) > cfg.converged_scale)) {
     std::snprintf(buf, sizeof buf,
                   "the iterations did not settle in %d: the last one still moved the self-made position by %.3f um "
                   "RMS (settled is %.3f um) and the accelerometer scale by %.5f: the slow passes are not steady "

@@ -73,6 +73,11 @@ struct SelfCalibrationConfig {
   int iterations = 12;
   double converged_m = 0.05e-6;
   double converged_scale = 2e-4;
+  /// The verdict calls iterations that did not settle a problem only when the last
+  /// still moved the estimate by more than this (RMS) [m]: below, they go back and
+  /// forth between neighbouring solutions by a tenth of what a calibration without
+  /// a ruler is good to (about 1 um beyond the track's own scale).
+  double unsettled_limit_m = 0.5e-6;
   /// The one absolute delay the recording cannot tell: give the Halls' (from the
   /// front end's filter design) or the accelerometer's (its data sheet). When both
   /// are NaN the Hall delay is taken as 0 and the report says so.
@@ -132,6 +137,10 @@ struct SelfCalibrationReport {
   std::string hall_delay_source;
   double hall_delay_reproduced_s = 0.0; ///< what forward/backward gave against the self-made position (a check)
   std::vector<std::string> iterations;  ///< one line per iteration: what it found
+  /// Beyond the slow passes (the turnarounds) the table rests on the accelerometer's
+  /// bridges: what they disagree by, the worst quarter pitch, one sigma [m]
+  /// (SensorModel::table_outside_std_m).
+  double outside_passes_std_m = 0.0;
   bool converged = false;               ///< the iterations settled (see SelfCalibrationConfig)
   double last_change_m = 0.0;           ///< how far the last iteration moved the estimate, RMS [m]
 };

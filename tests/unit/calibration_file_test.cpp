@@ -140,6 +140,43 @@ TEST_F(CalibrationFile, ARulerLessCalibrationKeepsItsScaleUncertainty) {
   EXPECT_NE(to_string(bad.errors).find("sensor_model.track_scale_std"), std::string::npos) << to_string(bad.errors);
 }
 
+TEST_F(CalibrationFile, ARulerLessCalibrationKeepsTheStretchItsPassesMade) {
+  // Absent from a calibration with a ruler: the file and its checksum are as before.
+  EXPECT_EQ(slurp(write_good("ruler.cal.yaml")).find("table_trusted"), std::string::npos);
+  cal_.info.method = "no-reference";
+  cal_.model.table_trusted_from_m = -0.0061834;
+  cal_.model.table_trusted_to_m = 1.2438123;
+  cal_.model.table_outside_std_m = 37.4e-6;
+  cal_.info.id = core::calibration_checksum(cal_);
+  core::Calibration moved = cal_;
+  moved.model.table_trusted_from_m += 1e-6;
+  EXPECT_NE(core::calibration_checksum(moved), cal_.info.id);  // part of what the id names
+  const CalibrationLoad r = load_calibration_file(write_good(), motor_);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  EXPECT_EQ(r.calibration.model.table_trusted_from_m, -0.0061834);
+  EXPECT_EQ(r.calibration.model.table_trusted_to_m, 1.2438123);
+  EXPECT_NEAR(r.calibration.model.table_outside_std_m, 37.4e-6, 1e-15);
+  EXPECT_EQ(core::calibration_checksum(r.calibration), cal_.info.id);
+  // One end without the other, and an empty stretch: refused, naming the key.
+  const std::string p = path("x.cal.yaml");
+  const std::string good = slurp(p);
+  std::string text = good;
+  const auto at = text.find("  table_trusted_to_m: ");
+  ASSERT_NE(at, std::string::npos);
+  text.erase(at, text.find('\n', at) + 1 - at);
+  spit(p, text);
+  const CalibrationLoad half = load_calibration_file(p, motor_);
+  ASSERT_FALSE(half.ok());
+  EXPECT_NE(to_string(half.errors).find("sensor_model.table_trusted_from_m"), std::string::npos) << to_string(half.errors);
+  text = good;
+  const auto to = text.find("table_trusted_to_m: ");
+  text.replace(to, text.find(' ', to + 20) - to, "table_trusted_to_m: -0.5");
+  spit(p, text);
+  const CalibrationLoad empty = load_calibration_file(p, motor_);
+  ASSERT_FALSE(empty.ok());
+  EXPECT_NE(to_string(empty.errors).find("sensor_model.table_trusted_to_m"), std::string::npos) << to_string(empty.errors);
+}
+
 TEST_F(CalibrationFile, RoundTripOfAnOddTable) {
   // Negative values, a non-zero start and a grid that is not a power of two.
   cal_.table.start_m = -0.0123456789;

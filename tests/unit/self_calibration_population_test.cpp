@@ -192,10 +192,11 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
                 o.accel_scale_rel_err * 100.0, o.accel_bias_err, o.accel_delay_err_s * 1e6,
                 o.hall_delay_reproduced_err_s * 1e6, o.sensor_offset_max_err_m * 1e6, o.track_scale_std * 1e6,
                 o.track_scale_true * 1e6);
-  // Met on every motor so far: no refusal, a table that solves everywhere, the
-  // accelerometer's scale. The targets not met on every motor yet (verdict good,
-  // Hall position within 2 um RMS over the whole travel) are counted here and
-  // asserted with VE_POPULATION_TARGETS=1.
+  // Met on every motor so far: no refusal, a verdict of good (the calibration is
+  // written), a table that solves everywhere, the accelerometer's scale. The target
+  // not met on every motor yet (Hall position within 2 um RMS over the whole travel:
+  // the track's own scale, see docs/accuracy.md) is counted here and asserted with
+  // VE_POPULATION_TARGETS=1.
   const bool targets = std::getenv("VE_POPULATION_TARGETS") != nullptr;
   int good = 0, accurate = 0;
   for (const auto& o : all) {
@@ -207,12 +208,10 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
     // true scale error within 4 of its sigma (over the 20 motors the ratio is 1.0 RMS).
     EXPECT_GT(o.track_scale_std, 0.0);
     EXPECT_LE(std::abs(o.track_scale_true), 4.0 * o.track_scale_std);
+    EXPECT_TRUE(o.good) << (o.problems.empty() ? std::string() : o.problems.front());
     good += o.good ? 1 : 0;
     accurate += o.position_rms_m <= 2e-6 ? 1 : 0;
-    if (targets) {
-      EXPECT_TRUE(o.good);
-      EXPECT_LE(o.position_rms_m, 2e-6);
-    }
+    if (targets) EXPECT_LE(o.position_rms_m, 2e-6);
   }
   std::printf("[ summary  ] %zu motors: %zu calibrated, %d good, %d within 2 um RMS\n", all.size(),
               static_cast<std::size_t>(std::count_if(all.begin(), all.end(), [](const Outcome& o) { return o.ok; })),
