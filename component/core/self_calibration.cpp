@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 
 #include "hall_array.hpp"
 
@@ -268,13 +269,14 @@ void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr
 /// bridged with the accelerometer (`bridged`) are left out: they would only find the
 /// accelerometer's own noise, at the delay the bridge used.
 ///
-/// The delay comes from the identification's short filter (timing needs the
-/// bandwidth). The scale then comes from a long one (`scale_half_window_s`): the
+/// Delay and scale both come through a long filter (`scale_half_window_s`): the
 /// self-made position in fast motion carries the Hall solve's errors at the magnet
-/// frequency (a few um, tens of Hz and up), which the short filter passes as
-/// acceleration; noise in the regressor biases a least-squares scale low by its
-/// share of the variance (about 2 % on a 10-bit, 40 mm-pitch motor), while the
-/// calibration motion's own acceleration is far slower than the filter's cut-off.
+/// frequency (a few um, tens of Hz and up), which the identification's short filter
+/// passes as acceleration. Noise in the regressor biases a least-squares scale low by
+/// its share of the variance (about 2 % on a 10-bit, 40 mm-pitch motor) and pulled
+/// the delay by up to 70 us, while the calibration motion's own acceleration is far
+/// slower than the filter's cut-off and still times the delay to about 10 us. The
+/// short filter only counts the fast samples and fits the bias.
 AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<std::vector<double>>& xr,
                            const std::vector<std::vector<char>>& bridged, const std::vector<double>& ts,
                            const IdentificationConfig& ic, double scale_half_window_s) {
@@ -324,10 +326,28 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   std::vector<double> scan(static_cast<std::size_t>(n_delays), std::numeric_limits<double>::infinity());
   double best = std::numeric_limits<double>::infinity();
   int best_i = -1;
-  const auto fast = fast_samples(f);
+  // Delay and scale through the long filter (below): the self-made position's errors
+  // at the magnet frequency that the short one passes pulled the delay by 40-70 us on
+  // three of twenty population motors (9-12 us through the long one), and the
+  // velocity then erred by three sigma wherever the acceleration changed.
+  const int m_long = static_cast<int>(std::lround(scale_half_window_s / std::max(1e-9, ts0)));
+  std::vector<FilteredSides> fl;
+  if (m_long > ic.derivative_half_window) {
+    fl.resize(ng);
+    for (std::size_t g = 0; g < ng; ++g)
+      filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], m_long, ic.max_accel_delay_s, fl[g]);
+  }
+  const auto& fd = fl.empty() ? f : fl;
+  const auto fast = fast_samples(fd);
+  if (!fl.empty() && [&] {
+        std::size_t n = 0;
+        for (const auto& idx : fast) n += idx.size();
+        return n < static_cast<std::size_t>(ic.dynamic_min_samples);
+      }())
+    return fit;
   for (int di = 0; di < n_delays; ++di) {
     double scale, bias, rms;
-    if (!regress(f, fast, di * step).solve(scale, bias, rms)) continue;
+    if (!regress(fd, fast, di * step).solve(scale, bias, rms)) continue;
     scan[static_cast<std::size_t>(di)] = rms;
     if (rms < best) {
       best = rms, best_i = di;
@@ -345,15 +365,9 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
     if (curv > 0.0) fit.delay_s += 0.5 * step * (y0 - y2) / curv;
   }
   fit.residual_mps2 = best;
-  // The scale through the long filter, at that delay.
-  const int m_long = static_cast<int>(std::lround(scale_half_window_s / std::max(1e-9, ts0)));
-  if (m_long > ic.derivative_half_window) {
-    std::vector<FilteredSides> fl(ng);
-    for (std::size_t g = 0; g < ng; ++g)
-      filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], m_long, ic.max_accel_delay_s, fl[g]);
-    const Regression r = regress(fl, fast_samples(fl), fit.delay_s);
+  {
     double scale, bias, rms;
-    if (r.n >= ic.dynamic_min_samples && r.solve(scale, bias, rms)) fit.scale = scale;
+    if (regress(fd, fast, fit.delay_s).solve(scale, bias, rms)) fit.scale = scale;  // at the refined delay
   }
   // The bias over every usable sample (the slow passes too).
   {
@@ -746,22 +760,31 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     rep.periods = static_cast<int>(std::floor(rep.swept_m / motor.magnet_pitch_m + 1e-6));
 
     // Convergence: how far the estimate moved since the last iteration (RMS over
-    // every segment, in the same frame: both have their zero at the sweep's start),
-    // where it is made of the lines and the Hall positions. The turnarounds bridged
-    // with the accelerometer are left out: they are good to tens of um only, and
-    // their bridges can alternate by a sample's worth between two iterations for
+    // every segment), where it is made of the lines and the Hall positions, apart
+    // from a shift of the whole frame: the working zero is where the recording
+    // starts, reached by the accelerometer bridged back from the first pass, and it
+    // can alternate by micrometres between two iterations (motor 9 of the
+    // population: 3.4 um, every other iteration) while nothing else moves; the
+    // calibration's own zero is home, found on the table at the end. The turnarounds
+    // bridged with the accelerometer are left out: they are good to tens of um only,
+    // and their bridges can alternate by a sample's worth between two iterations for
     // ever (what they depend on, the accelerometer's scale, is judged on its own).
     {
-      double sq = 0.0;
+      double sq = 0.0, sum = 0.0;
       long n = 0;
       for (std::size_t g = 0; g < ng; ++g) {
         const auto& xr = work[g].reference_m;
         if (prev_xr[g].size() == xr.size())
           for (std::size_t i = 0; i < xr.size(); i += 7)
-            if (bridged[g].empty() || !bridged[g][i]) sq += (xr[i] - prev_xr[g][i]) * (xr[i] - prev_xr[g][i]), ++n;
+            if (bridged[g].empty() || !bridged[g][i]) {
+              const double d = xr[i] - prev_xr[g][i];
+              sq += d * d, sum += d, ++n;
+            }
         prev_xr[g] = xr;
       }
-      change_m = n > 0 ? std::sqrt(sq / static_cast<double>(n)) : std::numeric_limits<double>::infinity();
+      const double mean = n > 0 ? sum / static_cast<double>(n) : 0.0;
+      change_m = n > 0 ? std::sqrt(std::max(0.0, sq / static_cast<double>(n) - mean * mean))
+                       : std::numeric_limits<double>::infinity();
     }
     // The estimate is where the Halls saw the carriage; the ruler it stands in for
     // reads the carriage now: shift it by the Hall delay.

@@ -91,9 +91,9 @@ struct SelfCalibrationConfig {
   /// 0: the identification's own.
   double derivative_half_window_s = 0.0;
   /// Half-width of the derivative window through which the accelerometer's scale
-  /// is fitted against the self-made position [s] (its delay keeps the short
-  /// one): long enough that the Hall solve's errors at the magnet frequency do not
-  /// pass as acceleration, short against the calibration motion (about 1 Hz).
+  /// and delay are fitted against the self-made position [s]: long enough that the
+  /// Hall solve's errors at the magnet frequency do not pass as acceleration, short
+  /// against the calibration motion (about 1 Hz).
   double accel_scale_half_window_s = 0.025;
 };
 
