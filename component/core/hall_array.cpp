@@ -31,6 +31,42 @@ HallArray::HallArray(const MotorConfig& motor, HallTable table)
   }
   quantisation_v2_ = lsb * lsb * qv;
   floor_m2_ = motor.filter.hall_position_floor_m * motor.filter.hall_position_floor_m;
+  sensors_ = std::min(sensors_, kMaxHalls);
+  if (table_.valid()) {
+    const auto points = static_cast<std::size_t>(table_.points);
+    knots_.assign(points * kMaxHalls, 0.0);
+    for (int s = 0; s < sensors_; ++s)
+      for (std::size_t k = 0; k < points; ++k)
+        knots_[k * kMaxHalls + static_cast<std::size_t>(s)] = table_.v[static_cast<std::size_t>(s) * points + k];
+  }
+}
+
+void HallArray::evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
+                             std::array<double, kMaxHalls>& slope_v_per_m) const {
+  const int points = table_.points;
+  double u = (x_m - table_.start_m) / table_.step_m;
+  u = std::clamp(u, 0.0, static_cast<double>(points - 1));
+  int k = static_cast<int>(u);
+  if (k > points - 2) k = points - 2;
+  const double t = u - k;
+  const double* r1 = knots_.data() + static_cast<std::size_t>(k) * kMaxHalls;
+  const double* r2 = r1 + kMaxHalls;
+  if (!knots_.empty() && k > 0 && k + 2 < points) {
+    const double* r0 = r1 - kMaxHalls;
+    const double* r3 = r2 + kMaxHalls;
+    for (int s = 0; s < kMaxHalls; ++s) {
+      // As HallTable::evaluate: Catmull-Rom through p0..p3 around [k, k+1].
+      const double p0 = r0[s], p1 = r1[s], p2 = r2[s], p3 = r3[s];
+      const double a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
+      const double b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
+      const double c = -0.5 * p0 + 0.5 * p2;
+      value_v[static_cast<std::size_t>(s)] = ((a * t + b) * t + c) * t + p1;
+      slope_v_per_m[static_cast<std::size_t>(s)] = ((3.0 * a * t + 2.0 * b) * t + c) / table_.step_m;
+    }
+    return;
+  }
+  for (int s = 0; s < sensors_; ++s)  // an end of the table: its own mirroring
+    table_.evaluate(s, x_m, value_v[static_cast<std::size_t>(s)], slope_v_per_m[static_cast<std::size_t>(s)]);
 }
 
 bool HallArray::usable(const RawSample& s, int i, std::uint32_t use_mask) const {
@@ -58,13 +94,21 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   const double info_c = with_gain ? 1.0 / pc : 0.0;
   const double mid = adaptation ? adaptation->mid_v() : 0.0;
   const double max_step = pitch_m_ / 8.0;
+  // The sensors that take part (valid, in use_mask, out of saturation), and those
+  // whose residual is checked at the solution (saturated ones too).
+  std::uint32_t in_use = 0, checked = 0;
+  for (int i = 0; i < sensors_; ++i) {
+    if (usable(sample, i, use_mask)) in_use |= 1u << i;
+    if ((sample.hall_valid_mask & use_mask) >> i & 1u) checked |= 1u << i;
+  }
+  std::array<double, kMaxHalls> tab{}, slp{};
   double x = guess_m, e = 0.0;
   for (int iter = 0, iters = with_gain ? 8 : 6; iter < iters; ++iter) {
     double hxx = 0.0, hxe = 0.0, hee = info_c, gx = 0.0, ge = -e * info_c;
+    if (in_use) evaluate_all(x, tab, slp);
     for (int i = 0; i < sensors_; ++i) {
-      if (!usable(sample, i, use_mask)) continue;
-      double t, slope;
-      table_.evaluate(i, x, t, slope);
+      if (!(in_use >> i & 1u)) continue;
+      const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
       const double w = weight(i, t);
       const double u = t - mid;
       const double r = sample.hall_v[i] - common_mode_v - t - e * u;
@@ -107,13 +151,13 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // position's sensitivity to its reading, for the adaptation's joint uncertainty.
   std::array<double, kMaxHalls> wjx{}, wu{}, tv{};
   std::uint32_t used_mask = 0;
+  if (checked) evaluate_all(x, tab, slp);
   for (int i = 0; i < sensors_; ++i) {
-    if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
-    double t, slope;
-    table_.evaluate(i, x, t, slope);
+    if (!(checked >> i & 1u)) continue;
+    const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
     const double u = t - mid;
     const double r = sample.hall_v[i] - common_mode_v - t - e * u;
-    if (usable(sample, i, use_mask)) {
+    if (in_use >> i & 1u) {
       const double w = weight(i, t);
       const double jx = (1.0 + e) * slope;
       chi2 += r * r * w;
