@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Core>
+
 namespace ve::core {
 
 HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
@@ -338,27 +340,29 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
   for (int j = 0; j < n; ++j) idx[m++] = j;
   idx[m++] = e;
   double ph[kJoint];
+  // The updates below keep only the upper triangle (row <= column: the states in
+  // idx order are ascending) and mirror it once at the end: each entry as
+  // before, without a scattered store for every one of them.
+  auto upper = [&](int row, int col) { return row <= col ? p_[row][col] : p_[col][row]; };
   auto scalar_update = [&](int i, double rv, bool whole) {
     const auto k = static_cast<std::size_t>(i);
     const int a = 2 * i, b = 2 * i + 1;
     for (int t = 0; t < m; ++t) {
       const int j = idx[t];
-      ph[j] = p_[j][a] * u[k] + p_[j][b] + p_[j][e] * sl[k];
+      ph[j] = upper(j, a) * u[k] + upper(j, b) + upper(j, e) * sl[k];
     }
     const double s = u[k] * ph[a] + ph[b] + sl[k] * ph[e] + rv / share;
     if (!(s > 0.0)) return;
     const double nu = r[k] - (u[k] * x[a] + x[b] + sl[k] * x[e]);
     if (whole) {
       for (int t = 0; t < m; ++t) x[idx[t]] += ph[idx[t]] / s * nu;
-      for (int t = 0; t < m; ++t) {
-        const int j = idx[t];
+      for (int j = 0; j < n; ++j) {  // idx is 0 .. n - 1, then e (> all of them)
         const double kj = ph[j] / s;
-        for (int v = t; v < m; ++v) {
-          const int l = idx[v];
-          p_[j][l] -= kj * ph[l];
-          p_[l][j] = p_[j][l];
-        }
+        double* row = p_[j];
+        Eigen::Map<Eigen::ArrayXd>(row + j, n - j) -= kj * Eigen::Map<const Eigen::ArrayXd>(ph + j, n - j);
+        row[e] -= kj * ph[e];
       }
+      p_[e][e] -= ph[e] / s * ph[e];
     } else {
       // A sensor judged faulty learns from the others but tells them nothing: only
       // its own parameters move, against the position error the others found.
@@ -379,6 +383,8 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
       scalar_update(i, noise_var_v2_ + model_var_v2_, healthy);
     }
   }
+  for (int t = 0; t < m; ++t)
+    for (int v = t + 1; v < m; ++v) p_[idx[v]][idx[t]] = p_[idx[t]][idx[v]];
   for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
   p_[e][e] = 0.0;
   // The looks: the table's error once per kModelShareOfPitch of travel, the noise of

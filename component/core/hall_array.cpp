@@ -2,6 +2,8 @@
 
 #include "hall_adaptation.hpp"
 
+#include <Eigen/Core>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -52,17 +54,15 @@ void HallArray::evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
   const double* r1 = knots_.data() + static_cast<std::size_t>(k) * kMaxHalls;
   const double* r2 = r1 + kMaxHalls;
   if (!knots_.empty() && k > 0 && k + 2 < points) {
-    const double* r0 = r1 - kMaxHalls;
-    const double* r3 = r2 + kMaxHalls;
-    for (int s = 0; s < kMaxHalls; ++s) {
-      // As HallTable::evaluate: Catmull-Rom through p0..p3 around [k, k+1].
-      const double p0 = r0[s], p1 = r1[s], p2 = r2[s], p3 = r3[s];
-      const double a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
-      const double b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
-      const double c = -0.5 * p0 + 0.5 * p2;
-      value_v[static_cast<std::size_t>(s)] = ((a * t + b) * t + c) * t + p1;
-      slope_v_per_m[static_cast<std::size_t>(s)] = ((3.0 * a * t + 2.0 * b) * t + c) / table_.step_m;
-    }
+    // As HallTable::evaluate, every sensor at once (the same operations in the same
+    // order, element by element): Catmull-Rom through p0..p3 around [k, k+1].
+    using Knots = Eigen::Array<double, kMaxHalls, 1>;
+    const Eigen::Map<const Knots> p0(r1 - kMaxHalls), p1(r1), p2(r2), p3(r2 + kMaxHalls);
+    const Knots a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
+    const Knots b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
+    const Knots c = -0.5 * p0 + 0.5 * p2;
+    Eigen::Map<Knots>(value_v.data()) = ((a * t + b) * t + c) * t + p1;
+    Eigen::Map<Knots>(slope_v_per_m.data()) = ((3.0 * a * t + 2.0 * b) * t + c) / table_.step_m;
     return;
   }
   for (int s = 0; s < sensors_; ++s)  // an end of the table: its own mirroring
