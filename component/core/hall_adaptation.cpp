@@ -355,14 +355,18 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
     if (!(s > 0.0)) return;
     const double nu = r[k] - (u[k] * x[a] + x[b] + sl[k] * x[e]);
     if (whole) {
-      for (int t = 0; t < m; ++t) x[idx[t]] += ph[idx[t]] / s * nu;
-      for (int j = 0; j < n; ++j) {  // idx is 0 .. n - 1, then e (> all of them)
-        const double kj = ph[j] / s;
+      // The gain, each state's ph / s (idx is 0 .. n - 1, then e, above all of them).
+      double kg[kJoint];
+      Eigen::Map<Eigen::ArrayXd>(kg, n) = Eigen::Map<const Eigen::ArrayXd>(ph, n) / s;
+      kg[e] = ph[e] / s;
+      for (int t = 0; t < m; ++t) x[idx[t]] += kg[idx[t]] * nu;
+      for (int j = 0; j < n; ++j) {
+        const double kj = kg[j];
         double* row = p_[j];
         Eigen::Map<Eigen::ArrayXd>(row + j, n - j) -= kj * Eigen::Map<const Eigen::ArrayXd>(ph + j, n - j);
         row[e] -= kj * ph[e];
       }
-      p_[e][e] -= ph[e] / s * ph[e];
+      p_[e][e] -= kg[e] * ph[e];
     } else {
       // A sensor judged faulty learns from the others but tells them nothing: only
       // its own parameters move, against the position error the others found.
