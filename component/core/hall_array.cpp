@@ -78,8 +78,17 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // Weight of sensor i with its reading's table value t: the noise, plus what its
   // adapted gain and offset are still unsure of.
   const double noise_var = 1.0 / weight_;
-  auto weight = [&](int i, double t) {
-    return adaptation ? 1.0 / (noise_var + adaptation->reading_variance(i, t)) : weight_;
+  using Column = Eigen::Array<double, kMaxHalls, 1>;
+  // Every sensor's weight where the table reads `t` (all at once: the divisions go
+  // in pairs).
+  auto weights = [&](const std::array<double, kMaxHalls>& t, std::array<double, kMaxHalls>& w) {
+    if (!adaptation) {
+      w.fill(weight_);
+      return;
+    }
+    Column rv;
+    for (int i = 0; i < kMaxHalls; ++i) rv[i] = i < sensors_ ? adaptation->reading_variance(i, t[static_cast<std::size_t>(i)]) : 0.0;
+    Eigen::Map<Column>(w.data()) = 1.0 / (noise_var + rv);
   };
   HallFix fix;
   for (int i = 0; i < sensors_; ++i)
@@ -101,15 +110,18 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
     if (usable(sample, i, use_mask)) in_use |= 1u << i;
     if ((sample.hall_valid_mask & use_mask) >> i & 1u) checked |= 1u << i;
   }
-  std::array<double, kMaxHalls> tab{}, slp{};
+  std::array<double, kMaxHalls> tab{}, slp{}, wgt{};
   double x = guess_m, e = 0.0;
   for (int iter = 0, iters = with_gain ? 8 : 6; iter < iters; ++iter) {
     double hxx = 0.0, hxe = 0.0, hee = info_c, gx = 0.0, ge = -e * info_c;
-    if (in_use) evaluate_all(x, tab, slp);
+    if (in_use) {
+      evaluate_all(x, tab, slp);
+      weights(tab, wgt);
+    }
     for (int i = 0; i < sensors_; ++i) {
       if (!(in_use >> i & 1u)) continue;
       const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
-      const double w = weight(i, t);
+      const double w = wgt[static_cast<std::size_t>(i)];
       const double u = t - mid;
       const double r = sample.hall_v[i] - common_mode_v - t - e * u;
       const double jx = (1.0 + e) * slope;
@@ -151,14 +163,17 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // position's sensitivity to its reading, for the adaptation's joint uncertainty.
   std::array<double, kMaxHalls> wjx{}, wu{}, tv{};
   std::uint32_t used_mask = 0;
-  if (checked) evaluate_all(x, tab, slp);
+  if (checked) {
+    evaluate_all(x, tab, slp);
+    weights(tab, wgt);
+  }
   for (int i = 0; i < sensors_; ++i) {
     if (!(checked >> i & 1u)) continue;
     const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
     const double u = t - mid;
     const double r = sample.hall_v[i] - common_mode_v - t - e * u;
     if (in_use >> i & 1u) {
-      const double w = weight(i, t);
+      const double w = wgt[static_cast<std::size_t>(i)];
       const double jx = (1.0 + e) * slope;
       chi2 += r * r * w;
       hxx += w * jx * jx;
@@ -187,16 +202,14 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   double gain_sq = qxx / (hxx * hxx);  // sum of the squared sensitivities c_i below
   double gain_prior_share = 0.0;       // what the common gain's prior adds to the position's variance
   std::array<double, kMaxHalls> c{};  // the position's sensitivity to each reading
-  for (int i = 0; i < sensors_; ++i) c[static_cast<std::size_t>(i)] = wjx[static_cast<std::size_t>(i)] / hxx;
+  const Eigen::Map<const Column> wjx_all(wjx.data()), wu_all(wu.data());
+  if (!with_gain) Eigen::Map<Column>(c.data()) = wjx_all / hxx;
   if (with_gain) {
     const double det = hxx * hee - hxe * hxe;
     if (!(det > 0.0)) return fix;
     var_x = hee / det;
     gain_sq = (hee * hee * qxx - 2.0 * hee * hxe * qxe + hxe * hxe * qee) / (det * det);
-    for (int i = 0; i < sensors_; ++i) {
-      const auto k = static_cast<std::size_t>(i);
-      c[k] = (hee * wjx[k] - hxe * wu[k]) / det;
-    }
+    Eigen::Map<Column>(c.data()) = (hee * wjx_all - hxe * wu_all) / det;
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
     const double ce = hxe / det;  // the position's sensitivity to the common gain's prior
