@@ -233,13 +233,14 @@ void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, dou
                                std::uint32_t& usable, double& s_sr, double& s_ss) const {
   usable = 0;
   s_sr = s_ss = 0.0;
+  std::array<double, kMaxHalls> tv{}, sv{};
+  table.evaluate_sensors(std::min(sensors_, table.sensors), x_m, tv.data(), sv.data());
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (!(((mask | learn_only_mask) & raw.hall_valid_mask) >> i & 1u)) continue;
     const double y = raw.hall_v[k];
     if (!(y > lo_v_ && y < hi_v_)) continue;
-    double t, slope;
-    table.evaluate(i, x_m, t, slope);
+    const double t = tv[k], slope = sv[k];
     // Where the table itself is at (or near) a rail it holds the clamp, not the
     // sensor's curve: a changed gain moves the reading off the rail there, which
     // the model cannot express. Such places teach nothing.

@@ -31,12 +31,29 @@ struct HallTable {
   /// interpolation; positions outside the grid are clamped to it. (Inline: it runs
   /// for every sensor several times per sample.)
   void evaluate(int sensor, double x_m, double& value_v, double& slope_v_per_m) const {
-    const double* row = v.data() + static_cast<std::size_t>(sensor) * static_cast<std::size_t>(points);
+    int k;
+    double t;
+    locate(x_m, k, t);
+    interpolate(sensor, k, t, value_v, slope_v_per_m);
+  }
+  /// evaluate() for sensors 0 .. count - 1 at one position (the grid cell found once).
+  void evaluate_sensors(int count, double x_m, double* value_v, double* slope_v_per_m) const {
+    int k;
+    double t;
+    locate(x_m, k, t);
+    for (int s = 0; s < count; ++s) interpolate(s, k, t, value_v[s], slope_v_per_m[s]);
+  }
+  /// The grid interval [k, k + 1] holding `x_m` (clamped to the grid) and the
+  /// position's fraction `t` of it.
+  void locate(double x_m, int& k, double& t) const {
     double u = (x_m - start_m) / step_m;
     u = std::clamp(u, 0.0, static_cast<double>(points - 1));
-    int k = static_cast<int>(u);
+    k = static_cast<int>(u);
     if (k > points - 2) k = points - 2;
-    const double t = u - k;
+    t = u - k;
+  }
+  void interpolate(int sensor, int k, double t, double& value_v, double& slope_v_per_m) const {
+    const double* row = v.data() + static_cast<std::size_t>(sensor) * static_cast<std::size_t>(points);
     // Catmull-Rom through p0..p3 around the interval [k, k+1]; ends mirror linearly.
     const double p1 = row[k];
     const double p2 = row[k + 1];
