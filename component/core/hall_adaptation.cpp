@@ -388,8 +388,9 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
       scalar_update(i, noise_var_v2_ + model_var_v2_, healthy);
     }
   }
-  for (int t = 0; t < m; ++t)
-    for (int v = t + 1; v < m; ++v) p_[idx[v]][idx[t]] = p_[idx[t]][idx[v]];
+  // The mirror (the shift's row and column are cleared next).
+  for (int j = 1; j < n; ++j)
+    for (int l = 0; l < j; ++l) p_[j][l] = p_[l][j];
   for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
   p_[e][e] = 0.0;
   // The looks: the table's error once per kModelShareOfPitch of travel, the noise of
