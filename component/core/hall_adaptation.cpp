@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Core>
+
 namespace ve::core {
 
 HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
@@ -231,13 +233,14 @@ void HallAdaptation::residuals(const RawSample& raw, const HallTable& table, dou
                                std::uint32_t& usable, double& s_sr, double& s_ss) const {
   usable = 0;
   s_sr = s_ss = 0.0;
+  std::array<double, kMaxHalls> tv{}, sv{};
+  table.evaluate_sensors(std::min(sensors_, table.sensors), x_m, tv.data(), sv.data());
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
     if (!(((mask | learn_only_mask) & raw.hall_valid_mask) >> i & 1u)) continue;
     const double y = raw.hall_v[k];
     if (!(y > lo_v_ && y < hi_v_)) continue;
-    double t, slope;
-    table.evaluate(i, x_m, t, slope);
+    const double t = tv[k], slope = sv[k];
     // Where the table itself is at (or near) a rail it holds the clamp, not the
     // sensor's curve: a changed gain moves the reading off the rail there, which
     // the model cannot express. Such places teach nothing.
@@ -338,27 +341,33 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
   for (int j = 0; j < n; ++j) idx[m++] = j;
   idx[m++] = e;
   double ph[kJoint];
+  // The updates below keep only the upper triangle (row <= column: the states in
+  // idx order are ascending) and mirror it once at the end: each entry as
+  // before, without a scattered store for every one of them.
+  auto upper = [&](int row, int col) { return row <= col ? p_[row][col] : p_[col][row]; };
   auto scalar_update = [&](int i, double rv, bool whole) {
     const auto k = static_cast<std::size_t>(i);
     const int a = 2 * i, b = 2 * i + 1;
     for (int t = 0; t < m; ++t) {
       const int j = idx[t];
-      ph[j] = p_[j][a] * u[k] + p_[j][b] + p_[j][e] * sl[k];
+      ph[j] = upper(j, a) * u[k] + upper(j, b) + upper(j, e) * sl[k];
     }
     const double s = u[k] * ph[a] + ph[b] + sl[k] * ph[e] + rv / share;
     if (!(s > 0.0)) return;
     const double nu = r[k] - (u[k] * x[a] + x[b] + sl[k] * x[e]);
     if (whole) {
-      for (int t = 0; t < m; ++t) x[idx[t]] += ph[idx[t]] / s * nu;
-      for (int t = 0; t < m; ++t) {
-        const int j = idx[t];
-        const double kj = ph[j] / s;
-        for (int v = t; v < m; ++v) {
-          const int l = idx[v];
-          p_[j][l] -= kj * ph[l];
-          p_[l][j] = p_[j][l];
-        }
+      // The gain, each state's ph / s (idx is 0 .. n - 1, then e, above all of them).
+      double kg[kJoint];
+      Eigen::Map<Eigen::ArrayXd>(kg, n) = Eigen::Map<const Eigen::ArrayXd>(ph, n) / s;
+      kg[e] = ph[e] / s;
+      for (int t = 0; t < m; ++t) x[idx[t]] += kg[idx[t]] * nu;
+      for (int j = 0; j < n; ++j) {
+        const double kj = kg[j];
+        double* row = p_[j];
+        Eigen::Map<Eigen::ArrayXd>(row + j, n - j) -= kj * Eigen::Map<const Eigen::ArrayXd>(ph + j, n - j);
+        row[e] -= kj * ph[e];
       }
+      p_[e][e] -= kg[e] * ph[e];
     } else {
       // A sensor judged faulty learns from the others but tells them nothing: only
       // its own parameters move, against the position error the others found.
@@ -379,6 +388,9 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
       scalar_update(i, noise_var_v2_ + model_var_v2_, healthy);
     }
   }
+  // The mirror (the shift's row and column are cleared next).
+  for (int j = 1; j < n; ++j)
+    for (int l = 0; l < j; ++l) p_[j][l] = p_[l][j];
   for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
   p_[e][e] = 0.0;
   // The looks: the table's error once per kModelShareOfPitch of travel, the noise of

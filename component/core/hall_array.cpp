@@ -2,6 +2,8 @@
 
 #include "hall_adaptation.hpp"
 
+#include <Eigen/Core>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -31,6 +33,40 @@ HallArray::HallArray(const MotorConfig& motor, HallTable table)
   }
   quantisation_v2_ = lsb * lsb * qv;
   floor_m2_ = motor.filter.hall_position_floor_m * motor.filter.hall_position_floor_m;
+  sensors_ = std::min(sensors_, kMaxHalls);
+  if (table_.valid()) {
+    const auto points = static_cast<std::size_t>(table_.points);
+    knots_.assign(points * kMaxHalls, 0.0);
+    for (int s = 0; s < sensors_; ++s)
+      for (std::size_t k = 0; k < points; ++k)
+        knots_[k * kMaxHalls + static_cast<std::size_t>(s)] = table_.v[static_cast<std::size_t>(s) * points + k];
+  }
+}
+
+void HallArray::evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
+                             std::array<double, kMaxHalls>& slope_v_per_m) const {
+  const int points = table_.points;
+  double u = (x_m - table_.start_m) / table_.step_m;
+  u = std::clamp(u, 0.0, static_cast<double>(points - 1));
+  int k = static_cast<int>(u);
+  if (k > points - 2) k = points - 2;
+  const double t = u - k;
+  const double* r1 = knots_.data() + static_cast<std::size_t>(k) * kMaxHalls;
+  const double* r2 = r1 + kMaxHalls;
+  if (!knots_.empty() && k > 0 && k + 2 < points) {
+    // As HallTable::evaluate, every sensor at once (the same operations in the same
+    // order, element by element): Catmull-Rom through p0..p3 around [k, k+1].
+    using Knots = Eigen::Array<double, kMaxHalls, 1>;
+    const Eigen::Map<const Knots> p0(r1 - kMaxHalls), p1(r1), p2(r2), p3(r2 + kMaxHalls);
+    const Knots a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
+    const Knots b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
+    const Knots c = -0.5 * p0 + 0.5 * p2;
+    Eigen::Map<Knots>(value_v.data()) = ((a * t + b) * t + c) * t + p1;
+    Eigen::Map<Knots>(slope_v_per_m.data()) = ((3.0 * a * t + 2.0 * b) * t + c) / table_.step_m;
+    return;
+  }
+  for (int s = 0; s < sensors_; ++s)  // an end of the table: its own mirroring
+    table_.evaluate(s, x_m, value_v[static_cast<std::size_t>(s)], slope_v_per_m[static_cast<std::size_t>(s)]);
 }
 
 bool HallArray::usable(const RawSample& s, int i, std::uint32_t use_mask) const {
@@ -42,8 +78,17 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // Weight of sensor i with its reading's table value t: the noise, plus what its
   // adapted gain and offset are still unsure of.
   const double noise_var = 1.0 / weight_;
-  auto weight = [&](int i, double t) {
-    return adaptation ? 1.0 / (noise_var + adaptation->reading_variance(i, t)) : weight_;
+  using Column = Eigen::Array<double, kMaxHalls, 1>;
+  // Every sensor's weight where the table reads `t` (all at once: the divisions go
+  // in pairs).
+  auto weights = [&](const std::array<double, kMaxHalls>& t, std::array<double, kMaxHalls>& w) {
+    if (!adaptation) {
+      w.fill(weight_);
+      return;
+    }
+    Column rv;
+    for (int i = 0; i < kMaxHalls; ++i) rv[i] = i < sensors_ ? adaptation->reading_variance(i, t[static_cast<std::size_t>(i)]) : 0.0;
+    Eigen::Map<Column>(w.data()) = 1.0 / (noise_var + rv);
   };
   HallFix fix;
   for (int i = 0; i < sensors_; ++i)
@@ -58,14 +103,25 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   const double info_c = with_gain ? 1.0 / pc : 0.0;
   const double mid = adaptation ? adaptation->mid_v() : 0.0;
   const double max_step = pitch_m_ / 8.0;
+  // The sensors that take part (valid, in use_mask, out of saturation), and those
+  // whose residual is checked at the solution (saturated ones too).
+  std::uint32_t in_use = 0, checked = 0;
+  for (int i = 0; i < sensors_; ++i) {
+    if (usable(sample, i, use_mask)) in_use |= 1u << i;
+    if ((sample.hall_valid_mask & use_mask) >> i & 1u) checked |= 1u << i;
+  }
+  std::array<double, kMaxHalls> tab{}, slp{}, wgt{};
   double x = guess_m, e = 0.0;
   for (int iter = 0, iters = with_gain ? 8 : 6; iter < iters; ++iter) {
     double hxx = 0.0, hxe = 0.0, hee = info_c, gx = 0.0, ge = -e * info_c;
+    if (in_use) {
+      evaluate_all(x, tab, slp);
+      weights(tab, wgt);
+    }
     for (int i = 0; i < sensors_; ++i) {
-      if (!usable(sample, i, use_mask)) continue;
-      double t, slope;
-      table_.evaluate(i, x, t, slope);
-      const double w = weight(i, t);
+      if (!(in_use >> i & 1u)) continue;
+      const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
+      const double w = wgt[static_cast<std::size_t>(i)];
       const double u = t - mid;
       const double r = sample.hall_v[i] - common_mode_v - t - e * u;
       const double jx = (1.0 + e) * slope;
@@ -107,14 +163,17 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // position's sensitivity to its reading, for the adaptation's joint uncertainty.
   std::array<double, kMaxHalls> wjx{}, wu{}, tv{};
   std::uint32_t used_mask = 0;
+  if (checked) {
+    evaluate_all(x, tab, slp);
+    weights(tab, wgt);
+  }
   for (int i = 0; i < sensors_; ++i) {
-    if (!((sample.hall_valid_mask & use_mask) >> i & 1u)) continue;
-    double t, slope;
-    table_.evaluate(i, x, t, slope);
+    if (!(checked >> i & 1u)) continue;
+    const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
     const double u = t - mid;
     const double r = sample.hall_v[i] - common_mode_v - t - e * u;
-    if (usable(sample, i, use_mask)) {
-      const double w = weight(i, t);
+    if (in_use >> i & 1u) {
+      const double w = wgt[static_cast<std::size_t>(i)];
       const double jx = (1.0 + e) * slope;
       chi2 += r * r * w;
       hxx += w * jx * jx;
@@ -143,16 +202,14 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   double gain_sq = qxx / (hxx * hxx);  // sum of the squared sensitivities c_i below
   double gain_prior_share = 0.0;       // what the common gain's prior adds to the position's variance
   std::array<double, kMaxHalls> c{};  // the position's sensitivity to each reading
-  for (int i = 0; i < sensors_; ++i) c[static_cast<std::size_t>(i)] = wjx[static_cast<std::size_t>(i)] / hxx;
+  const Eigen::Map<const Column> wjx_all(wjx.data()), wu_all(wu.data());
+  if (!with_gain) Eigen::Map<Column>(c.data()) = wjx_all / hxx;
   if (with_gain) {
     const double det = hxx * hee - hxe * hxe;
     if (!(det > 0.0)) return fix;
     var_x = hee / det;
     gain_sq = (hee * hee * qxx - 2.0 * hee * hxe * qxe + hxe * hxe * qee) / (det * det);
-    for (int i = 0; i < sensors_; ++i) {
-      const auto k = static_cast<std::size_t>(i);
-      c[k] = (hee * wjx[k] - hxe * wu[k]) / det;
-    }
+    Eigen::Map<Column>(c.data()) = (hee * wjx_all - hxe * wu_all) / det;
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
     const double ce = hxe / det;  // the position's sensitivity to the common gain's prior

@@ -5,7 +5,9 @@
 // than one seen by a single sensor near its clamp).
 #pragma once
 
+#include <array>
 #include <cstdint>
+#include <vector>
 
 #include "hall_table.hpp"
 #include "motor.hpp"
@@ -68,8 +70,16 @@ class HallArray {
 
  private:
   bool usable(const RawSample& s, int i, std::uint32_t use_mask) const;
+  /// Every sensor's table value and slope at `x_m` (HallTable::evaluate for sensors
+  /// 0 .. sensors_ - 1, the same arithmetic): the grid cell is found once, and the
+  /// four knots around it are adjacent in memory for all sensors.
+  void evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
+                    std::array<double, kMaxHalls>& slope_v_per_m) const;
 
   HallTable table_;
+  /// table_.v knot-major: knots_[k * kMaxHalls + s] is sensor s at grid point k
+  /// (sensors beyond the table's hold 0).
+  std::vector<double> knots_;
   double pitch_m_;
   int sensors_;
   double lo_v_;        ///< readings at or below are saturated low

@@ -6,25 +6,6 @@
 
 namespace ve::core {
 
-void HallTable::evaluate(int sensor, double x_m, double& value_v, double& slope_v_per_m) const {
-  const double* row = v.data() + static_cast<std::size_t>(sensor) * static_cast<std::size_t>(points);
-  double u = (x_m - start_m) / step_m;
-  u = std::clamp(u, 0.0, static_cast<double>(points - 1));
-  int k = static_cast<int>(u);
-  if (k > points - 2) k = points - 2;
-  const double t = u - k;
-  // Catmull-Rom through p0..p3 around the interval [k, k+1]; ends mirror linearly.
-  const double p1 = row[k];
-  const double p2 = row[k + 1];
-  const double p0 = k > 0 ? row[k - 1] : 2.0 * p1 - p2;
-  const double p3 = k + 2 < points ? row[k + 2] : 2.0 * p2 - p1;
-  const double a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
-  const double b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
-  const double c = -0.5 * p0 + 0.5 * p2;
-  value_v = ((a * t + b) * t + c) * t + p1;
-  slope_v_per_m = ((3.0 * a * t + 2.0 * b) * t + c) / step_m;
-}
-
 HallTable nominal_hall_table(const MotorConfig& motor, int points_per_pitch) {
   HallTable table;
   table.step_m = motor.magnet_pitch_m / points_per_pitch;

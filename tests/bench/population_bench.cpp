@@ -20,11 +20,21 @@
 //                                  [--jobs 2] [--no-temperature] [--temperature-signal]
 // --temperature-signal: every motor's sensor node reports its temperature (the
 // estimator then starts from what the data sheet predicts for the difference).
+//
+// --cost [--reps R]: instead of the accuracy tables, the estimator's compute time per
+// sample on each motor (calibrated with a ruler): AxisPipeline::step over 5 s of the
+// multisine, as calibrated (cold) and 10 K warmer than at calibration (warm: the
+// sensors' gains and offsets are learnt jointly), the samples recorded beforehand so
+// only the estimator is timed. Each of R runs starts a fresh pipeline; the table gives
+// the fastest and the median run's mean per sample. Timed on one thread by its CPU
+// time (--jobs only parallelises the calibrations); written to
+// <out-dir>/population-cost.md.
 #include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <mutex>
@@ -48,6 +58,8 @@ struct Options {
   int jobs = 2;
   bool temperature = true;
   bool temperature_signal = false;
+  bool cost = false;
+  int reps = 7;
   std::string command;
 };
 
@@ -78,7 +90,7 @@ bool parse(int argc, char** argv, Options& o) {
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> const char* { return i + 1 < argc ? argv[++i] : nullptr; };
-    if (a == "--motors" || a == "--first-seed" || a == "--jobs") {
+    if (a == "--motors" || a == "--first-seed" || a == "--jobs" || a == "--reps") {
       const char* v = next();
       char* end = nullptr;
       const long n = v ? std::strtol(v, &end, 10) : -1;
@@ -89,6 +101,7 @@ bool parse(int argc, char** argv, Options& o) {
       if (a == "--motors") o.motors = static_cast<int>(n);
       if (a == "--first-seed") o.first_seed = static_cast<std::uint64_t>(n);
       if (a == "--jobs") o.jobs = static_cast<int>(n);
+      if (a == "--reps") o.reps = static_cast<int>(n);
     } else if (a == "--out-dir") {
       const char* v = next();
       if (!v) return false;
@@ -97,10 +110,12 @@ bool parse(int argc, char** argv, Options& o) {
       o.temperature = false;
     } else if (a == "--temperature-signal") {
       o.temperature_signal = true;
+    } else if (a == "--cost") {
+      o.cost = true;
     } else {
       std::fprintf(stderr,
                    "usage: %s [--motors N] [--first-seed S] [--out-dir DIR] [--jobs J] [--no-temperature] "
-                   "[--temperature-signal]\n",
+                   "[--temperature-signal] [--cost [--reps R]]\n",
                    argv[0]);
       return false;
     }
@@ -233,6 +248,154 @@ std::string make_svg(const std::vector<MotorResult>& results, std::uint64_t firs
   return o.str();
 }
 
+// --cost: the estimator's compute time per sample, motor by motor.
+struct CostRun {
+  std::vector<core::RawSample> samples;
+  core::PipelineConfig config;
+  bool joint = false;  ///< the adaptation learnt jointly by the end of the run
+  std::vector<double> ns_per_sample;  ///< one per timed run
+};
+
+struct CostMotor {
+  sim::PopulationMotor motor;
+  bench::CalibrationOutcome cal;
+  CostRun run[2];  // 0: as calibrated, 1: 10 K warmer
+  std::string note;
+};
+
+/// Records 5 s of the multisine (slowed down until it fits the motor, as the accuracy
+/// runs do) at `offset_k` from the calibration's temperature.
+bool record_cost_run(const sim::PopulationMotor& m, const bench::CalibrationOutcome& c, double offset_k, CostRun& run,
+                     std::string& error) {
+  sim::SimConfig cfg = m.sim;
+  cfg.realtime = false;
+  cfg.noise_seed = 3000;
+  cfg.profile = bench::population_scenarios(m.datasheet.travel_m)[3].profile;  // multisine
+  for (int i = 0; i < 30 && !sim::MotionProfile::create(cfg.profile, m.hardware.travel_m); ++i) {
+    cfg.profile.max_velocity_mps *= 0.85;
+    cfg.profile.velocity_mps *= 0.85;
+    cfg.profile.acceleration_mps2 *= 0.85;
+  }
+  cfg.duration_s = 5.0;
+  if (offset_k != 0.0) {
+    cfg.temperature.profile = sim::TemperatureConfig::Profile::constant;
+    cfg.temperature.offset_k = offset_k;
+  }
+  sim::SimSource src(m.hardware, cfg);
+  if (!src.ok()) {
+    error = src.last_error();
+    return false;
+  }
+  core::RawSample s;
+  while (src.read(s) == drivers::ReadStatus::ok) run.samples.push_back(s);
+  run.config.motor = m.datasheet;
+  run.config.sensors = c.cal.model;
+  run.config.calibrated = true;
+  run.config.start_position_known = true;
+  run.config.start_position_m = cfg.profile.start_m - c.zero_m;
+  return !run.samples.empty();
+}
+
+volatile double cost_sink = 0.0;
+
+/// The compute time this thread has had [ns]: on a shared host, time spent waiting
+/// for a core is not the estimator's (on a core of its own both are the same).
+double thread_cpu_ns() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e9 + static_cast<double>(ts.tv_nsec);
+}
+
+/// One timed run: a fresh pipeline (built outside the timing) over every sample.
+double time_cost_run(const CostRun& run, const core::HallTable& table, bool& joint) {
+  core::AxisPipeline pipeline(run.config, table);
+  double sink = 0.0;
+  const double t0 = thread_cpu_ns();
+  for (const auto& s : run.samples) sink += pipeline.step(s).position_m;
+  const double t1 = thread_cpu_ns();
+  joint = pipeline.adaptation().joint();
+  cost_sink = sink;  // the estimates are used: nothing of step() can be left out
+  return (t1 - t0) / static_cast<double>(run.samples.size());
+}
+
+int run_cost(const Options& o, const core::FilterConfig& tuning) {
+  std::vector<CostMotor> motors(static_cast<std::size_t>(o.motors));
+  std::atomic<int> next{0};
+  std::vector<std::thread> workers;
+  for (int j = 0; j < std::max(1, o.jobs); ++j) {
+    workers.emplace_back([&] {
+      for (int i = next++; i < o.motors; i = next++) {
+        CostMotor& m = motors[static_cast<std::size_t>(i)];
+        m.motor = sim::draw_population_motor(o.first_seed + static_cast<std::uint64_t>(i), tuning);
+        std::vector<core::ReferenceSegment> segments;
+        std::string error;
+        if (!bench::record_population_calibration(m.motor, segments, error)) {
+          m.note = "calibration run failed: " + error;
+          continue;
+        }
+        m.cal = bench::calibrate_population_motor(m.motor, segments, true);
+        if (!m.cal.ok) {
+          m.note = "calibration failed: " + m.cal.error;
+          continue;
+        }
+        for (int warm = 0; warm < 2; ++warm)
+          if (!record_cost_run(m.motor, m.cal, warm ? 10.0 : 0.0, m.run[warm], error)) m.note = "run failed: " + error;
+      }
+    });
+  }
+  for (auto& w : workers) w.join();
+  // Timed on this thread alone, the runs of one motor interleaved.
+  for (auto& m : motors) {
+    if (!m.note.empty()) continue;
+    for (int rep = 0; rep < o.reps; ++rep)
+      for (auto& run : m.run) run.ns_per_sample.push_back(time_cost_run(run, m.cal.cal.table, run.joint));
+    std::fprintf(stderr, "seed %llu: %d Halls, %.0f / %.0f ns per sample\n",
+                 static_cast<unsigned long long>(m.motor.seed), m.motor.datasheet.hall.count,
+                 *std::min_element(m.run[0].ns_per_sample.begin(), m.run[0].ns_per_sample.end()),
+                 *std::min_element(m.run[1].ns_per_sample.begin(), m.run[1].ns_per_sample.end()));
+  }
+  std::ostringstream md;
+  md << "# Estimator compute time on a population of motors\n\n"
+     << "`" << o.command << "`: " << o.motors << " motors (seeds " << o.first_seed << ".." << o.first_seed + o.motors - 1
+     << "), each calibrated with a ruler. Mean time of AxisPipeline::step per sample over 5 s of the multisine "
+        "(recorded beforehand; only the estimator is timed), as calibrated (cold) and 10 K warmer than at "
+        "calibration (warm: the adaptation learns the sensors' gains and offsets jointly). "
+     << o.reps << " runs each, a fresh pipeline per run, on one thread, timed by that thread's CPU time "
+        "(clock_gettime(CLOCK_THREAD_CPUTIME_ID): on a shared host the time spent waiting for a core is left "
+        "out); fastest / median run. "
+        "The requirement: at most 1000 ns per sample per axis.\n\n"
+     << "| seed | Halls | sample rate [Hz] | cold: fastest / median [ns] | warm: fastest / median [ns] | warm: joint |\n"
+     << "|---|---|---|---|---|---|\n";
+  double worst[2] = {0.0, 0.0};
+  for (const auto& m : motors) {
+    md << "| " << m.motor.seed << " | " << m.motor.datasheet.hall.count << " | "
+       << f("%.0f", m.motor.datasheet.sample_rate_hz) << " | ";
+    if (!m.note.empty()) {
+      md << m.note << " | | |\n";
+      continue;
+    }
+    for (int warm = 0; warm < 2; ++warm) {
+      const auto& v = m.run[warm].ns_per_sample;
+      const double fastest = *std::min_element(v.begin(), v.end());
+      worst[warm] = std::max(worst[warm], fastest);
+      md << f("%.0f", fastest) << " / " << f("%.0f", median(v)) << " | ";
+    }
+    md << (m.run[1].joint ? "yes" : "no") << " |\n";
+  }
+  md << "\nSlowest motor (fastest run): " << f("%.0f", worst[0]) << " ns cold, " << f("%.0f", worst[1])
+     << " ns warm.\n";
+  std::printf("%s", md.str().c_str());
+  std::error_code ec;
+  std::filesystem::create_directories(o.out_dir, ec);
+  const std::string path = o.out_dir + "/population-cost.md";
+  std::ofstream out(path + ".tmp");
+  out << md.str();
+  out.close();
+  std::filesystem::rename(path + ".tmp", path, ec);
+  std::fprintf(stderr, "written: %s%s\n", path.c_str(), ec ? (" FAILED: " + ec.message()).c_str() : "");
+  return ec ? 1 : 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -245,6 +408,7 @@ int main(int argc, char** argv) {
   }
   // The estimator's tuning is the shipped motor file template's: not a property of the motor.
   const core::FilterConfig tuning = machine.config.axes.at(0).motor.filter;
+  if (o.cost) return run_cost(o, tuning);
 
   std::vector<MotorResult> results(static_cast<std::size_t>(o.motors));
   std::mutex print;
