@@ -58,6 +58,11 @@ inline void run_guest_suite(const std::string& run_dir_prefix, const std::string
     s << "#!/bin/sh\n"
       << "export VE_IN_VM=1 PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin HOME=/tmp\n"
       << "export VE_TEST_DDS_DOMAINS_HELD=" << domains_held << "\n"
+      // The guest receives the state stream: its socket buffers as the package sets
+      // them on every such host (docs/dds-interface.md, Buffer sizes). With the
+      // kernel's default cap the emulated guest's DDS readers lost up to a quarter
+      // of the stream whenever their thread waited for a core.
+      << "sysctl -q -p " << src << "/deploy/sysctl/60-virtual-encoder.conf\n"
       << "cd " << out << "\n"
       << exe << " --gtest_filter='" << gtest_filter << "' --gtest_color=no > " << out << "/guest.log 2>&1\n"
       << "echo $? > " << out << "/guest.rc\n"
