@@ -141,7 +141,8 @@ TaskSwitches task_switches(pid_t pid) {
         have = true;
       }
     if (!have) continue;
-    const bool pacing = comm.rfind("ve-", 0) == 0 || comm == "ve_bare_writer";
+    // The bare writer's other threads (Fast DDS's) inherit its main thread's name.
+    const bool pacing = comm.rfind("ve-", 0) == 0 || (tid == pid && comm == "ve_bare_writer");
     (pacing ? t.pacing : t.other)[tid] = n;
   }
   return t;
