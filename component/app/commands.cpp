@@ -592,7 +592,7 @@ int run_command(const RunOptions& options) {
   int exit_code = 0;
   std::atomic<bool> stopping{false};
   {
-    // VE_DDS_STATE_NO_DEADLINE=1 (measurements only, docs/scale.md): the state writers
+    // VE_DDS_STATE_NO_DEADLINE=1 (measurements only, docs/dds-interface.md): the state writers
     // offer no deadline, which readers that request one (ve_state_reader) do not match.
     const char* no_deadline = std::getenv("VE_DDS_STATE_NO_DEADLINE");
     const bool offer_deadline = no_deadline == nullptr || std::string(no_deadline) != "1";

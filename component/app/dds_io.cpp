@@ -597,7 +597,8 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
   qos_ = std::make_unique<fdds::DataWriterQos>(q);
   // No writer yet: each group of axes gets one in add_group(), and those are the only
   // state writers there are (an earlier writer made here that only ever matched
-  // readers showed up in discovery as a second state writer that never wrote). ok() still says whether a writer can be made from these QoS: Fast DDS
+  // readers showed up in discovery as a second state writer that never wrote).
+  // ok() still says whether a writer can be made from these QoS: Fast DDS
   // checks them on a writer created disabled, in a publisher of its own that does not
   // enable what it creates, so the probe never reaches discovery.
   fdds::PublisherQos probe_qos = fdds::PUBLISHER_QOS_DEFAULT;
