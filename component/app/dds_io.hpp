@@ -156,12 +156,13 @@ struct DeadlineCounters {
 /// Writer of ve/encoder_state for all axes of this process (one instance per axis).
 /// The axes are added in groups (add_group): the axes of one group share one keyed
 /// DataWriter, one instance each; a group of one has a writer of its own. `run` makes
-/// one group per sample thread (the axes one thread steps in turn), so a reader
-/// matches one state writer per sample thread. Why a group shares a writer: Fast DDS
-/// 2.9 re-arms a writer's offered-deadline timer (a wake-up of the participant's event
-/// thread) at every write of the instance whose deadline comes first, so N writers
-/// of one instance each cost N wake-ups per tick, one keyed writer written in
-/// alternating order (GroupWriteOrder) one (docs/dds-interface.md, "What an offered deadline costs").
+/// one group per sample thread (the axes one thread steps in turn; one group per axis
+/// with dds.state_writer: per_axis), so a reader matches one state writer per sample
+/// thread. Why a group shares a writer: Fast DDS 2.9 re-arms a writer's offered-deadline
+/// timer (waking the participant's event thread) at every write of the instance whose
+/// deadline comes first, so N writers of one instance each re-arm N times per tick, one
+/// keyed writer written in alternating order (GroupWriteOrder) once
+/// (docs/dds-interface.md, "What an offered deadline costs").
 class StateWriter {
  public:
   /// deadline_ms > 0 replaces the profile's offered deadline; <= 0 keeps the profile's
@@ -191,7 +192,8 @@ class StateWriter {
   /// From the axis thread, now and then: ends (and logs) a miss episode after a
   /// quiet time of max(0.5 s, 10 deadlines). Cheap when nothing happened.
   void poll_deadline_episode(int slot, std::int64_t steady_now_ns);
-  /// The axis stopped publishing: unregister its instance (no more deadline misses).
+  /// The axis stopped publishing: dispose and unregister its instance (no more deadline
+  /// misses of it; the deadline of the other axes of its writer goes on).
   void retire_axis(int slot);
 
   /// The axis' sample thread's write, through its group's writer.
