@@ -138,7 +138,7 @@ struct DiagnosticsAccumulator {
 /// Per-axis loop state shared with the status reporter.
 struct AxisLoop {
   AxisSetup setup;
-  int slot = -1;  ///< StateWriter::add_axis
+  int slot = -1;  ///< StateWriter::add_group
   std::atomic<std::uint64_t> samples{0};    ///< estimated
   std::atomic<std::uint64_t> published{0};  ///< state samples written (every publish_divider-th)
   std::atomic<std::uint64_t> write_failures{0};
@@ -394,7 +394,8 @@ struct SampleGroup {
 };
 
 /// A single axis: its source paces the loop (a blocking read per sample).
-/// Several: one wait per tick for the earliest due source, then every due axis in turn.
+/// Several: one wait per tick for the earliest due source, then every due axis in turn,
+/// in the machine file's order and in the reverse order every other tick (GroupWriteOrder).
 void group_loop(SampleGroup& group, StateWriter& writer, DiagnosticsWriter& diagnostics,
                 const std::atomic<bool>& stopping) {
   std::vector<std::unique_ptr<AxisRunner>> runners;
@@ -409,6 +410,7 @@ void group_loop(SampleGroup& group, StateWriter& writer, DiagnosticsWriter& diag
   const std::size_t n = runners.size();
   std::vector<char> done(n, 0);
   std::vector<std::int64_t> due(n, 0);  // each source's next_due_ns() of this tick
+  GroupWriteOrder order(n);
   std::size_t active = n;
   const std::int64_t start_ns = drivers::monotonic_ns();
   for (auto& r : runners)
@@ -423,7 +425,9 @@ void group_loop(SampleGroup& group, StateWriter& writer, DiagnosticsWriter& diag
     }
     if (!drivers::sleep_until(due_ns, stopping)) break;  // shutdown
     const std::int64_t now_ns = drivers::monotonic_ns();
-    for (std::size_t i = 0; i < n; ++i) {
+    order.next_tick();  // forwards, then backwards: one deadline re-arm per tick (GroupWriteOrder)
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::size_t i = order.at(k);
       if (done[i] || due[i] > now_ns) continue;
       if (!runners[i]->step()) {
         done[i] = 1;
@@ -590,19 +594,39 @@ int run_command(const RunOptions& options) {
   int exit_code = 0;
   std::atomic<bool> stopping{false};
   {
-    StateWriter state_writer(*ctx, machine.dds.deadline_ms);
+    // VE_DDS_STATE_NO_DEADLINE=1 (measurements only, docs/dds-interface.md): the state writers
+    // offer no deadline, which readers that request one (ve_state_reader) do not match.
+    const char* no_deadline = std::getenv("VE_DDS_STATE_NO_DEADLINE");
+    const bool offer_deadline = no_deadline == nullptr || std::string(no_deadline) != "1";
+    if (!offer_deadline)
+      spdlog::warn("VE_DDS_STATE_NO_DEADLINE=1: the state writers offer no deadline (for measurements only; "
+                   "readers that request one do not match)");
+    StateWriter state_writer(*ctx, offer_deadline ? machine.dds.deadline_ms : HUGE_VAL);
     DescriptionWriter description_writer(*ctx);
     DiagnosticsWriter diagnostics_writer(*ctx);
     if (!state_writer.ok() || !description_writer.ok() || !diagnostics_writer.ok()) {
       spdlog::error("cannot create the DDS writers (check the QoS in the profiles file)");
       return 1;
     }
-    for (auto& loop : loops) {
-      loop->slot = state_writer.add_axis(loop->setup.config.id, loop->setup.config.name);
-      if (loop->slot < 0) {
-        spdlog::error("cannot create the DDS writer of axis '{}'", loop->setup.config.name);
-        return 1;
+    // The sample threads and their axes; each thread's axes share one state writer
+    // (dds.state_writer: per_group), or each axis has its own (per_axis).
+    const auto groups = plan_groups(loops, machine.realtime);
+    for (const auto& g : groups) {
+      std::vector<StateWriter::AxisName> members;
+      for (const AxisLoop* l : g->axes) members.push_back({l->setup.config.id, l->setup.config.name});
+      if (machine.dds.state_writer == config::DdsConfig::StateWriters::per_axis) {
+        std::vector<int> slots;
+        for (const auto& m : members) slots.push_back(state_writer.add_axis(m.axis_id, m.name));
+        for (std::size_t i = 0; i < g->axes.size(); ++i) g->axes[i]->slot = slots[i];
+      } else {
+        const auto slots = state_writer.add_group(members);
+        for (std::size_t i = 0; i < slots.size(); ++i) g->axes[i]->slot = slots[i];
       }
+      for (const AxisLoop* l : g->axes)
+        if (l->slot < 0) {
+          spdlog::error("cannot create the DDS state writer of axis '{}'", l->setup.config.name);
+          return 1;
+        }
     }
     for (const auto& loop : loops) description_writer.write(describe_axis(loop->setup, machine));
 
@@ -654,7 +678,6 @@ int run_command(const RunOptions& options) {
     for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
     Realtime realtime(machine.realtime, axis_names);
     if (!realtime.ok()) return 1;
-    const auto groups = plan_groups(loops, machine.realtime);
     for (auto& loop : loops)
       if (loop->canopen) loop->canopen->start(machine.realtime);  // boot-up; no estimate yet (6503h position error)
     for (const auto& g : groups) {

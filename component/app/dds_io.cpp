@@ -530,7 +530,7 @@ DdsContext::~DdsContext() {
 // ---------------------------------------------------------------- StateWriter
 
 struct StateWriter::Slot {
-  fdds::DataWriter* writer = nullptr;  ///< this axis' own writer (its own lock and deadline timer)
+  fdds::DataWriter* writer = nullptr;  ///< its group's writer (shared lock and deadline timer), owned by writers_
   std::uint32_t axis_id = 0;
   std::string name;
   eprosima::fastrtps::rtps::InstanceHandle_t handle;
@@ -541,7 +541,7 @@ struct StateWriter::Slot {
   std::mutex episode_mutex;           ///< start (listener thread) vs end (axis thread)
   std::uint64_t missed_at_start = 0;
   std::int64_t episode_start_ns = 0;
-  bool retired = false;
+  std::atomic<bool> retired{false};  ///< set by the axis thread, read by the listener
 };
 
 class StateWriter::Listener : public fdds::DataWriterListener {
@@ -551,6 +551,9 @@ class StateWriter::Listener : public fdds::DataWriterListener {
     // One call per report of one instance; slots are fixed before publishing starts.
     for (auto& slot : writer.slots_) {
       if (slot->writer != w || slot->handle != s.last_instance_handle) continue;
+      // A retired axis' instance is gone, but a writer whose deadline timer was set for
+      // it (a writer of that one axis) still fires once for it: not a miss.
+      if (slot->retired.load()) return;
       const auto now = steady_ns();
       std::uint64_t added = 0;
       {
@@ -565,7 +568,7 @@ class StateWriter::Listener : public fdds::DataWriterListener {
     }
   }
   void on_publication_matched(fdds::DataWriter* w, const fdds::PublicationMatchedStatus& s) override {
-    // Per axis writer (a callback may come while a later axis is being added).
+    // Per group writer (a callback may come while a later group is being added).
     std::lock_guard<std::mutex> lock(matched_mutex);
     matched[w] = s.current_count;
   }
@@ -586,15 +589,16 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
   fdds::DataWriterQos q;
   from_profile_ = endpoint_qos<ve::dds::EncoderState>(ctx_, q);
   if (!from_profile_ && deadline_ms <= 0) q.deadline().period = eprosima::fastrtps::c_TimeInfinite;
-  if (deadline_ms > 0) q.deadline().period = duration_ms(deadline_ms);
+  if (deadline_ms > 0) q.deadline().period = std::isinf(deadline_ms) ? eprosima::fastrtps::c_TimeInfinite
+                                                                     : duration_ms(deadline_ms);
   no_data_sharing(q);
   deadline_ms_ = to_ms(q.deadline().period);
   deadline_ns_ = static_cast<std::int64_t>(std::llround(deadline_ms_ * 1e6));
   qos_ = std::make_unique<fdds::DataWriterQos>(q);
-  // No writer yet: each axis gets its own in add_axis(), and that is the only state
-  // writer there is (one per axis; an earlier shared writer that only ever matched
-  // readers showed up in discovery as a second state writer per axis that never
-  // wrote). ok() still says whether a writer can be made from these QoS: Fast DDS
+  // No writer yet: each group of axes gets one in add_group(), and those are the only
+  // state writers there are (an earlier writer made here that only ever matched
+  // readers showed up in discovery as a second state writer that never wrote).
+  // ok() still says whether a writer can be made from these QoS: Fast DDS
   // checks them on a writer created disabled, in a publisher of its own that does not
   // enable what it creates, so the probe never reaches discovery.
   fdds::PublisherQos probe_qos = fdds::PUBLISHER_QOS_DEFAULT;
@@ -609,28 +613,59 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
 }
 
 StateWriter::~StateWriter() {
-  for (auto& slot : slots_) delete_endpoint(ctx_, slot->writer);
+  for (auto* w : writers_) delete_endpoint(ctx_, w);
+}
+
+std::vector<int> StateWriter::add_group(const std::vector<AxisName>& axes) {
+  if (!ok_ || axes.empty()) return {};
+  std::vector<std::unique_ptr<Slot>> added;
+  ve::dds::EncoderStatePubSubType type;
+  for (const auto& axis : axes) {
+    auto slot = std::make_unique<Slot>();
+    slot->axis_id = axis.axis_id;
+    slot->name = axis.name;
+    // The instance handle of a key <= 16 bytes is computed from the key alone; the
+    // instance is not registered here, so no deadline runs before the first write.
+    ve::dds::EncoderState key{};
+    key.axis_id(axis.axis_id);
+    type.getKey(&key, &slot->handle, false);
+    added.push_back(std::move(slot));
+  }
+  // One writer for the group, one instance per axis: Fast DDS 2.9 keeps at most 10
+  // instances per writer by default (max_instances), so the limits are raised to the
+  // group's size. It also refuses max_samples below max_instances times
+  // max_samples_per_instance (defaults 5000, 10 and 400: 16 axes would need 6400); a
+  // keep-last history never holds more than its depth per instance, so that is the
+  // per-instance limit, and max_samples is raised to hold it for every instance.
+  fdds::DataWriterQos q = *qos_;
+  auto& limits = q.resource_limits();
+  const auto n = static_cast<std::int32_t>(axes.size());
+  if (limits.max_instances > 0 && limits.max_instances < n) limits.max_instances = n;
+  if (q.history().kind == fdds::KEEP_LAST_HISTORY_QOS && q.history().depth > 0 &&
+      (limits.max_samples_per_instance <= 0 || limits.max_samples_per_instance > q.history().depth))
+    limits.max_samples_per_instance = q.history().depth;
+  if (limits.max_samples > 0 && limits.max_samples_per_instance > 0 &&
+      limits.max_samples < limits.max_instances * limits.max_samples_per_instance)
+    limits.max_samples = limits.max_instances * limits.max_samples_per_instance;
+  // A stalled or bursting group never holds the lock another group writes through, so
+  // the deadlines of axes in different sample threads stay independent in the process.
+  auto* w = ctx_.publisher()->create_datawriter(
+      ctx_.state_topic(), q, listener_.get(),
+      fdds::StatusMask::offered_deadline_missed() << fdds::StatusMask::publication_matched());
+  if (w == nullptr) return {};
+  writers_.push_back(w);
+  std::vector<int> indices;
+  for (auto& slot : added) {
+    slot->writer = w;
+    slots_.push_back(std::move(slot));
+    indices.push_back(static_cast<int>(slots_.size() - 1));
+  }
+  return indices;
 }
 
 int StateWriter::add_axis(std::uint32_t axis_id, const std::string& name) {
-  if (!ok_) return -1;
-  auto slot = std::make_unique<Slot>();
-  slot->axis_id = axis_id;
-  slot->name = name;
-  // The instance handle of a key <= 16 bytes is computed from the key alone; the
-  // instance is not registered here, so no deadline runs before the first write.
-  ve::dds::EncoderState key{};
-  key.axis_id(axis_id);
-  ve::dds::EncoderStatePubSubType type;
-  type.getKey(&key, &slot->handle, false);
-  // One writer per axis: a stalled or bursting axis never holds the lock another
-  // axis writes through, so their deadlines are independent inside the process too.
-  slot->writer = ctx_.publisher()->create_datawriter(
-      ctx_.state_topic(), *qos_, listener_.get(),
-      fdds::StatusMask::offered_deadline_missed() << fdds::StatusMask::publication_matched());
-  if (slot->writer == nullptr) return -1;
-  slots_.push_back(std::move(slot));
-  return static_cast<int>(slots_.size() - 1);
+  const auto slots = add_group({AxisName{axis_id, name}});
+  return slots.empty() ? -1 : slots.front();
 }
 
 const DeadlineCounters& StateWriter::counters(int slot) const { return slots_.at(static_cast<std::size_t>(slot))->counters; }
@@ -650,10 +685,22 @@ void StateWriter::poll_deadline_episode(int index, std::int64_t now_ns) {
 
 void StateWriter::retire_axis(int index) {
   Slot& slot = *slots_[static_cast<std::size_t>(index)];
-  if (slot.retired || slot.writer == nullptr) return;
-  slot.retired = true;
+  if (slot.retired.load() || slot.writer == nullptr) return;
+  slot.retired.store(true);
   ve::dds::EncoderState key{};
   key.axis_id(slot.axis_id);
+  // Disposed first, then unregistered. Fast DDS 2.9.1's writer waits for one instance's
+  // deadline at a time (its "timer owner", the instance whose deadline comes first) and
+  // moves on to the next only when that instance is written or misses. A best-effort
+  // writer's unregister removes the instance from the history before the deadline is
+  // looked at (DataWriterImpl::perform_create_new_change, set_next_deadline fails and Fast
+  // DDS logs "Could not set the next deadline in the history"): had the instance been the
+  // owner, the timer would fire for it once more and then stop for good, and the other
+  // axes of the group would have no deadline any more. The dispose is a write of the
+  // instance that keeps it: it moves its deadline last, so that another instance is the
+  // owner when it goes. Readers see the instance disposed, as the unregister alone did
+  // (autodispose_unregistered_instances, true by default).
+  slot.writer->dispose(&key, slot.handle);
   slot.writer->unregister_instance(&key, slot.handle);
 }
 

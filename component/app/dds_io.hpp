@@ -154,10 +154,20 @@ struct DeadlineCounters {
 };
 
 /// Writer of ve/encoder_state for all axes of this process (one instance per axis).
+/// The axes are added in groups (add_group): the axes of one group share one keyed
+/// DataWriter, one instance each; a group of one has a writer of its own. `run` makes
+/// one group per sample thread (the axes one thread steps in turn; one group per axis
+/// with dds.state_writer: per_axis), so a reader matches one state writer per sample
+/// thread. Why a group shares a writer: Fast DDS 2.9 re-arms a writer's offered-deadline
+/// timer (waking the participant's event thread) at every write of the instance whose
+/// deadline comes first, so N writers of one instance each re-arm N times per tick, one
+/// keyed writer written in alternating order (GroupWriteOrder) once
+/// (docs/dds-interface.md, "What an offered deadline costs").
 class StateWriter {
  public:
   /// deadline_ms > 0 replaces the profile's offered deadline; <= 0 keeps the profile's
-  /// (or, without profiles, offers none).
+  /// (or, without profiles, offers none); infinity offers none (for measurements only:
+  /// a reader that requests a deadline does not match such a writer).
   StateWriter(DdsContext& ctx, double deadline_ms);
   ~StateWriter();
   /// The QoS are consistent (a writer can be made from them) and there is a publisher.
@@ -165,20 +175,28 @@ class StateWriter {
   bool from_profile() const { return from_profile_; }
   double deadline_ms() const { return deadline_ms_; }
 
-  /// Before publishing starts (not thread-safe): an axis this writer publishes.
-  /// Its deadline misses are counted per instance and logged once per episode
-  /// (warn at the first miss, info when it is over). The axis gets its own
-  /// DataWriter on the topic (same QoS), the only state writer of that axis: a
-  /// reader matches one state writer per axis. Returns the slot, -1 on failure.
+  struct AxisName {
+    std::uint32_t axis_id = 0;
+    std::string name;
+  };
+  /// Before publishing starts (not thread-safe): axes this writer publishes, written
+  /// by one thread. They get one DataWriter on the topic (same QoS, its resource limits
+  /// raised to hold one instance per axis), the only state writer of these axes.
+  /// Each axis' deadline misses are counted per instance and logged once per episode
+  /// (warn at the first miss, info when it is over). Returns the axes' slots in the
+  /// given order; empty on failure (nothing added).
+  std::vector<int> add_group(const std::vector<AxisName>& axes);
+  /// A group of one: the axis has a DataWriter of its own. Returns its slot, -1 on failure.
   int add_axis(std::uint32_t axis_id, const std::string& name);
   const DeadlineCounters& counters(int slot) const;
   /// From the axis thread, now and then: ends (and logs) a miss episode after a
   /// quiet time of max(0.5 s, 10 deadlines). Cheap when nothing happened.
   void poll_deadline_episode(int slot, std::int64_t steady_now_ns);
-  /// The axis stopped publishing: unregister its instance (no more deadline misses).
+  /// The axis stopped publishing: dispose and unregister its instance (no more deadline
+  /// misses of it; the deadline of the other axes of its writer goes on).
   void retire_axis(int slot);
 
-  /// The axis thread's write, through the axis' own writer.
+  /// The axis' sample thread's write, through its group's writer.
   bool write(int slot, const ve::dds::EncoderState& sample);
   /// Thread-safe: Fast DDS serialises writes per writer. Finds the axis' writer;
   /// false for an axis that was not added.
@@ -189,7 +207,7 @@ class StateWriter {
   std::uint64_t deadline_early_reports() const;
   /// Offered deadline misses of one axis instance.
   std::uint64_t deadline_missed(std::uint32_t axis_id) const;
-  /// Readers matched with the axes' writers (the most any one of them has).
+  /// Readers matched with the groups' writers (the most any one of them has).
   int matched_readers() const;
 
  private:
@@ -201,6 +219,7 @@ class StateWriter {
   DdsContext& ctx_;
   std::unique_ptr<Listener> listener_;
   std::vector<std::unique_ptr<Slot>> slots_;
+  std::vector<eprosima::fastdds::dds::DataWriter*> writers_;  ///< one per group
   std::unique_ptr<eprosima::fastdds::dds::DataWriterQos> qos_;
   bool ok_ = false;
   bool from_profile_ = false;
@@ -259,6 +278,26 @@ class TopicReader : public TopicEndpoint<eprosima::fastdds::dds::DataReader> {
  private:
   class Listener;
   std::unique_ptr<Listener> listener_;
+};
+
+/// The order in which a sample thread writes the axes of its group, tick after tick:
+/// forwards, then backwards, and so on. Fast DDS 2.9's keyed writer re-arms its
+/// offered-deadline timer only at a write of the instance whose deadline comes first,
+/// which is the instance written first in the tick before: written last in this tick,
+/// it re-arms once per tick, however many axes the group has (in one fixed order every
+/// write would re-arm: each makes the next axis the first due). Readers that request a
+/// deadline gain the same (Fast DDS's reader does the same per received sample).
+class GroupWriteOrder {
+ public:
+  explicit GroupWriteOrder(std::size_t n) : n_(n) {}
+  /// Starts a tick: the next n() calls of at(k), k = 0..n-1, give the members' indices.
+  void next_tick() { backwards_ = !backwards_; }
+  std::size_t at(std::size_t k) const { return backwards_ ? n_ - 1 - k : k; }
+  std::size_t n() const { return n_; }
+
+ private:
+  std::size_t n_;
+  bool backwards_ = true;  ///< the first tick goes forwards
 };
 
 /// Writer of ve/diagnostics (about 10 Hz per axis, reliable keep-last).

@@ -1137,6 +1137,8 @@ class MachineLoader {
         return std::string();
       });
       deadline_ms_ = cfg.dds.deadline_ms;
+      dds.get_enum("state_writer", cfg.dds.state_writer,
+                   {{"per_group", DdsConfig::StateWriters::per_group}, {"per_axis", DdsConfig::StateWriters::per_axis}});
       const Value profiles = dds.value("profiles_file");
       if (profiles.present()) referenced_file(profiles, cfg.dds.profiles_file);
       const Value stats = dds.value("statistics");

@@ -90,6 +90,13 @@ struct DdsConfig {
   int domain = 0;              ///< 0..232
   double deadline_ms = 5.0;    ///< offered deadline per axis instance; whole milliseconds
   std::string profiles_file;   ///< optional Fast DDS XML profiles (resolved path)
+  /// The state writers (`state_writer`): `per_group` (the default) gives the axes one
+  /// sample thread steps one keyed DataWriter, one instance each; `per_axis` gives every
+  /// axis a DataWriter of its own (what a reader matched before: one state writer per
+  /// axis), at the cost of one wake-up of Fast DDS's event thread per write with an
+  /// offered deadline (docs/dds-interface.md).
+  enum class StateWriters { per_group, per_axis };
+  StateWriters state_writer = StateWriters::per_group;
   /// Fast DDS statistics topics to publish (what Fast DDS Monitor and other tools
   /// read), by name, e.g. HISTORY_LATENCY_TOPIC. Empty: none.
   std::vector<std::string> statistics;

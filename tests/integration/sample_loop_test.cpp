@@ -3,7 +3,7 @@
 // thread, one wake-up per tick; an axis of another rate gets a thread of its own.
 // What is checked is behaviour, not timing: the grouping `run` logs, every axis'
 // samples with consecutive sequence numbers and exact sample instants, and, within one
-// loop, the axes handed over in the machine file's order on every tick.
+// loop, the axes handed over in the machine file's order and back, tick after tick.
 #include <gtest/gtest.h>
 
 #include <signal.h>
@@ -128,7 +128,7 @@ std::size_t check_axis(int id, const std::vector<Row>& rows, double rate_hz, dou
   return missing;
 }
 
-TEST(SampleLoop, ThreeAxesOfOneRateAreSteppedInOneThreadInTheMachineFilesOrder) {
+TEST(SampleLoop, ThreeAxesOfOneRateAreSteppedInOneThreadInTheMachineFilesOrderAndBack) {
   const ve::test::RealTimeSlot real_time;  // compares the axes of one stream (speed.hpp)
   const Stream s = stream(data("three_axes.yaml"), {1, 2, 3}, 8000);
   EXPECT_EQ(s.run_exit, 0) << s.log;
@@ -139,22 +139,40 @@ TEST(SampleLoop, ThreeAxesOfOneRateAreSteppedInOneThreadInTheMachineFilesOrder) 
     ASSERT_NE(it, s.rows.end()) << "axis " << id << " never reached the monitor\n" << s.log;
     check_axis(id, it->second, 4000.0);
   }
-  // One thread steps x, y, z in turn on every tick: the hand-over instant
-  // (source_time_ns) of a sample is x's, then y's, then z's, never another order.
+  // One thread steps x, y, z in turn on every tick, in the machine file's order and in
+  // the reverse order every other tick (GroupWriteOrder: one deadline re-arm per tick):
+  // the hand-over instants (source_time_ns) of a tick are x's, y's, z's, or z's, y's,
+  // x's, never another order, and two consecutive ticks go opposite ways.
   std::map<long long, long long> source_of[3];
   for (int id : {1, 2, 3})
     for (const Row& r : s.rows.at(id)) source_of[id - 1][r.sample_time_ns] = r.source_time_ns;
-  std::size_t ticks = 0, in_order = 0;
+  std::size_t ticks = 0, forwards = 0, backwards = 0, pairs = 0, alternating = 0;
+  long long last_t = 0;
+  int last_way = 0;  // 1 forwards, -1 backwards, 0 neither
+  const long long period_ns = 250000;
   for (const auto& [t, x] : source_of[0]) {
     const auto y = source_of[1].find(t), z = source_of[2].find(t);
     if (y == source_of[1].end() || z == source_of[2].end()) continue;
     ++ticks;
-    if (x <= y->second && y->second <= z->second) ++in_order;
+    int way = 0;
+    if (x <= y->second && y->second <= z->second) way = 1;
+    else if (z->second <= y->second && y->second <= x) way = -1;
+    forwards += way == 1;
+    backwards += way == -1;
+    if (way != 0 && last_way != 0 && t - last_t == period_ns) {
+      ++pairs;
+      alternating += way != last_way;
+    }
+    last_t = t;
+    last_way = way;
   }
-  std::printf("[ figures  ] %zu ticks seen on all three axes, %zu handed over in the order x, y, z\n", ticks,
-              in_order);
+  std::printf("[ figures  ] %zu ticks seen on all three axes, %zu handed over in the order x, y, z and %zu in the "
+              "order z, y, x; %zu of %zu consecutive ticks went opposite ways\n",
+              ticks, forwards, backwards, alternating, pairs);
   EXPECT_GT(ticks, 4000u);
-  EXPECT_EQ(in_order, ticks);
+  EXPECT_EQ(forwards + backwards, ticks);
+  EXPECT_GT(pairs, 1000u);
+  EXPECT_EQ(alternating, pairs);
 }
 
 TEST(SampleLoop, AxesOfRatesThatDivideShareAThreadAndAnotherRateGetsItsOwn) {

@@ -5,7 +5,14 @@
 // DataWriter. No estimator, no per-axis thread: what the same number of writes costs
 // through Fast DDS alone.
 //
-//   ve_bare_writer DOMAIN AXES [--rate HZ] [--duration S]
+//   ve_bare_writer DOMAIN AXES [--rate HZ] [--duration S] [--order fixed|alternate]
+//                  [--writers one|per_axis] [--deadline on|off]
+//
+// --order: the axes in the order 1..N every wake-up (fixed, the default), or 1..N then
+// N..1 and so on (alternate, as the product's shared sample loop writes its group).
+// --writers: one keyed writer for all axes (the default), or one writer per axis.
+// --deadline off: the writer offers no deadline (the profile's 5 ms removed), to
+// measure what the offered deadline costs.
 //
 // The participant is made from the profile "ve_participant" and the writer from
 // "ve_state_writer" (FASTRTPS_DEFAULT_PROFILES_FILE, deploy/dds-profiles.xml: UDPv4 only,
@@ -22,6 +29,7 @@
 #include <cstdlib>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
@@ -53,7 +61,8 @@ std::int64_t realtime_ns() {
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    std::fprintf(stderr, "usage: ve_bare_writer DOMAIN AXES [--rate HZ] [--duration S]\n");
+    std::fprintf(stderr, "usage: ve_bare_writer DOMAIN AXES [--rate HZ] [--duration S] [--order fixed|alternate] "
+                         "[--writers one|per_axis] [--deadline on|off]\n");
     return 2;
   }
   const int domain = std::atoi(argv[1]);
@@ -66,10 +75,14 @@ int main(int argc, char** argv) {
   registerVirtualEncoderTypes();
   const int axes = std::atoi(argv[2]);
   double rate = 4000.0, duration = 0.0;
+  bool alternate = false, writer_per_axis = false, deadline = true;
   for (int i = 3; i + 1 < argc; i += 2) {
-    const std::string k = argv[i];
-    if (k == "--rate") rate = std::atof(argv[i + 1]);
-    else if (k == "--duration") duration = std::atof(argv[i + 1]);
+    const std::string k = argv[i], v = argv[i + 1];
+    if (k == "--rate") rate = std::atof(v.c_str());
+    else if (k == "--duration") duration = std::atof(v.c_str());
+    else if (k == "--order" && (v == "fixed" || v == "alternate")) alternate = v == "alternate";
+    else if (k == "--writers" && (v == "one" || v == "per_axis")) writer_per_axis = v == "per_axis";
+    else if (k == "--deadline" && (v == "on" || v == "off")) deadline = v == "on";
     else return 2;
   }
   if (axes < 1 || rate <= 0) return 2;
@@ -95,14 +108,19 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "bare_writer: no data_writer profile 've_state_writer'\n");
     return 1;
   }
+  if (!deadline) wq.deadline().period = eprosima::fastrtps::c_TimeInfinite;
   // One writer, AXES instances: Fast DDS 2.9 keeps at most 10 instances per writer by default
-  // (the profile sets no resource limits; the product has one writer per axis, one instance).
-  wq.resource_limits().max_instances = axes;
+  // (the profile sets no resource limits). Or one writer per axis, one instance each.
+  const int per_writer = writer_per_axis ? 1 : axes;
+  wq.resource_limits().max_instances = per_writer;
   wq.resource_limits().max_samples_per_instance = 1;
-  wq.resource_limits().max_samples = axes;
-  wq.resource_limits().allocated_samples = axes;
-  fdds::DataWriter* writer = publisher->create_datawriter(topic, wq);
-  if (writer == nullptr) return 1;
+  wq.resource_limits().max_samples = per_writer;
+  wq.resource_limits().allocated_samples = per_writer;
+  std::vector<fdds::DataWriter*> writers;
+  for (int i = 0; i < (writer_per_axis ? axes : 1); ++i) {
+    writers.push_back(publisher->create_datawriter(topic, wq));
+    if (writers.back() == nullptr) return 1;
+  }
   std::printf("READY\n");
   std::fflush(stdout);
 
@@ -118,7 +136,9 @@ int main(int argc, char** argv) {
     if (end != 0 && due >= end) break;
     ++seq;
     const std::int64_t now = realtime_ns();
-    for (int a = 1; a <= axes; ++a) {
+    for (int k = 0; k < axes; ++k) {
+      const int a = alternate && (seq % 2 == 0) ? axes - k : k + 1;
+      fdds::DataWriter* writer = writers[writer_per_axis ? a - 1 : 0];
       s.axis_id(static_cast<std::uint32_t>(a));
       s.sequence_number(seq);
       s.sample_time_ns(due);

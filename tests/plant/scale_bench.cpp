@@ -1,4 +1,4 @@
-// Scale benchmark: the CPU of `virtual-encoder run` with 1, 2, 4, 8 and 16 simulated axes
+// Scale benchmark (--mode axes, the default): the CPU of `virtual-encoder run` with 1, 2, 4, 8 and 16 simulated axes
 // at 4 kHz (all axes in one sample thread, `realtime.sample_loop: shared`; and again with
 // one sample thread per axis, `per_axis`, without a subscriber), next to
 //   - the pacing floor: threads that only wake at 4 kHz, paced as the product's sample
@@ -10,7 +10,16 @@
 // fixed window after a warm-up, in % of one core; the subscriber's samples received per
 // second over the same window show whether the publisher kept its rate.
 //
-//   bench_scale [--axes 1,2,4,8,16] [--window S] [--warmup S] [--domain D] [--out FILE]
+//   bench_scale [--mode axes|deadline] [--axes 1,2,4,8,16] [--window S] [--warmup S] [--domain D] [--out FILE]
+//
+// --mode deadline: the cost of the offered deadline instead, without a subscriber, for
+// each number of axes: the bare writer with one keyed writer written in a fixed order,
+// in alternating order, with one writer per axis and with no deadline; `run` with one
+// state writer per sample thread (the default), one per axis (dds.state_writer:
+// per_axis) and with no deadline (VE_DDS_STATE_NO_DEADLINE=1); next to the one-thread
+// floor. Besides CPU it counts the voluntary context switches of the publisher's threads
+// (/proc/PID/task/*/status), the pacing thread(s) apart from the others (Fast DDS's
+// event thread is woken by every re-arm of a deadline timer).
 //
 // Defaults: window 10 s, warm-up 3 s, domain 97 (a benchmark domain, docs/testing.md),
 // out tests/bench/results/scale.md. The machines are config/machines/sim-8axis.yaml's
@@ -32,6 +41,7 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -49,7 +59,7 @@ struct Child {
 };
 
 Child spawn(const std::vector<std::string>& args, const std::string& out, const std::string& err,
-            const std::string& profiles) {
+            const std::string& profiles, const std::vector<std::pair<std::string, std::string>>& env = {}) {
   Child c;
   c.out = out;
   const pid_t parent = getpid();
@@ -65,6 +75,7 @@ Child spawn(const std::vector<std::string>& args, const std::string& out, const 
     dup2(o, 1);
     dup2(e, 2);
     setenv("FASTRTPS_DEFAULT_PROFILES_FILE", profiles.c_str(), 1);
+    for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
     std::vector<char*> argv;
     for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
@@ -109,6 +120,44 @@ double cpu_seconds(pid_t pid) {
   return static_cast<double>(utime + stime) / static_cast<double>(sysconf(_SC_CLK_TCK));
 }
 
+/// Voluntary context switches of each thread of a process (tid -> count), and which
+/// threads pace it: `run`'s sample threads (named ve-...), the bare writer's main thread.
+struct TaskSwitches {
+  std::map<int, unsigned long long> pacing, other;
+};
+TaskSwitches task_switches(pid_t pid) {
+  TaskSwitches t;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    const int tid = std::atoi(e.path().filename().c_str());
+    std::ifstream comm_in(e.path() / "comm"), status_in(e.path() / "status");
+    std::string comm, line;
+    std::getline(comm_in, comm);
+    unsigned long long n = 0;
+    bool have = false;
+    while (std::getline(status_in, line))
+      if (line.rfind("voluntary_ctxt_switches:", 0) == 0) {
+        n = std::stoull(line.substr(24));
+        have = true;
+      }
+    if (!have) continue;
+    // The bare writer's other threads (Fast DDS's) inherit its main thread's name.
+    const bool pacing = comm.rfind("ve-", 0) == 0 || (tid == pid && comm == "ve_bare_writer");
+    (pacing ? t.pacing : t.other)[tid] = n;
+  }
+  return t;
+}
+/// Switches per second between two readings, over the threads present in both.
+double switches_per_s(const std::map<int, unsigned long long>& a, const std::map<int, unsigned long long>& b,
+                      double dt) {
+  unsigned long long n = 0;
+  for (const auto& [tid, count] : b) {
+    const auto it = a.find(tid);
+    if (it != a.end()) n += count - it->second;
+  }
+  return static_cast<double>(n) / dt;
+}
+
 /// The last "received=N" a bare reader printed, 0 if none yet.
 unsigned long long received(const std::string& out) {
   std::ifstream in(out);
@@ -143,7 +192,9 @@ std::string loadavg() {
 
 /// The first n axes of sim-8axis.yaml (n up to 16: the eight again with ids + 8).
 /// `sample_loop`: realtime.sample_loop of the machine ("" leaves the default, shared).
-std::string write_machine(const fs::path& src_machine, int n, const fs::path& dir, const std::string& sample_loop = "") {
+/// `state_writer`: dds.state_writer of the machine ("" leaves the default, per_group).
+std::string write_machine(const fs::path& src_machine, int n, const fs::path& dir, const std::string& sample_loop = "",
+                          const std::string& state_writer = "") {
   YAML::Node m = YAML::LoadFile(src_machine.string());
   YAML::Node axes = m["axes"];
   YAML::Node out_axes(YAML::NodeType::Sequence);
@@ -162,7 +213,9 @@ std::string write_machine(const fs::path& src_machine, int n, const fs::path& di
   m["axes"] = out_axes;
   m["machine"] = "scale-" + std::to_string(n);
   if (!sample_loop.empty()) m["realtime"]["sample_loop"] = sample_loop;
-  const fs::path file = dir / ("scale-" + std::to_string(n) + (sample_loop.empty() ? "" : "-" + sample_loop) + ".yaml");
+  if (!state_writer.empty()) m["dds"]["state_writer"] = state_writer;
+  const fs::path file = dir / ("scale-" + std::to_string(n) + (sample_loop.empty() ? "" : "-" + sample_loop) +
+                               (state_writer.empty() ? "" : "-w" + state_writer) + ".yaml");
   std::ofstream(file) << m << "\n";
   return file.string();
 }
@@ -172,6 +225,8 @@ struct Measure {
   double sub_cpu_pct = -1;  // subscriber, % of one core
   double rx_per_s = -1;     // samples received per second by the subscriber
   double pub_per_s = -1;    // samples the publisher says it published, per second of its life
+  double pacing_switches_per_s = -1;  // voluntary context switches of the pacing thread(s)
+  double other_switches_per_s = -1;   // ... of every other thread of the publisher
 };
 
 /// The samples a publisher says it published: `run`'s "published N samples" (stderr) or
@@ -190,6 +245,130 @@ double published(const std::string& out, const std::string& err) {
   return -1;
 }
 
+
+/// --mode deadline: what the offered deadline costs and the ways to pay less, side by side
+/// for each number of axes, with the floor: the bare writer with one keyed writer written
+/// in one fixed order, in alternating order, one writer per axis, and no deadline; `run`
+/// with one writer per sample thread (dds.state_writer: per_group, the default), one
+/// writer per axis (per_axis), and no deadline (VE_DDS_STATE_NO_DEADLINE=1). No subscriber.
+template <class MeasureFn>
+int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<int>& axis_counts, const fs::path& src,
+                   const fs::path& dir, const std::string& d, const std::string& seconds, double window,
+                   double warmup, double rate, const std::string& load_before, const std::string& out_file) {
+  struct Column {
+    const char* head;
+    std::string key;
+  };
+  const std::vector<Column> columns = {
+      {"bare: one writer, fixed order", "bare-fixed"},     {"bare: one writer, alternating", "bare-alt"},
+      {"bare: writer per axis", "bare-per-axis"},          {"bare: no deadline", "bare-none"},
+      {"`run`: writer per sample thread", "run-group"},    {"`run`: writer per axis", "run-per-axis"},
+      {"`run`: no deadline", "run-none"},
+  };
+  struct Row {
+    int n;
+    std::vector<Measure> m;
+  };
+  std::vector<Row> rows;
+  for (int n : axis_counts) {
+    Row r{n, {}};
+    const std::string ns = std::to_string(n);
+    const fs::path machines = src / "config/machines/sim-8axis.yaml";
+    const std::string group = write_machine(machines, n, dir);
+    const std::string per_axis = write_machine(machines, n, dir, "", "per_axis");
+    auto run = [&](const std::string& machine) {
+      return std::vector<std::string>{VE_BINARY, "run", "--config", machine, "--domain", d, "--duration", seconds,
+                                      "--status-period", "60"};
+    };
+    for (const auto& c : columns) {
+      const std::string tag = c.key + "-" + ns;
+      if (c.key == "bare-fixed") r.m.push_back(measure({VE_BARE_WRITER, d, ns, "--order", "fixed"}, false, tag));
+      if (c.key == "bare-alt") r.m.push_back(measure({VE_BARE_WRITER, d, ns, "--order", "alternate"}, false, tag));
+      if (c.key == "bare-per-axis")
+        r.m.push_back(measure({VE_BARE_WRITER, d, ns, "--writers", "per_axis"}, false, tag));
+      if (c.key == "bare-none") r.m.push_back(measure({VE_BARE_WRITER, d, ns, "--deadline", "off"}, false, tag));
+      if (c.key == "run-group") r.m.push_back(measure(run(group), false, tag));
+      if (c.key == "run-per-axis") r.m.push_back(measure(run(per_axis), false, tag));
+      if (c.key == "run-none") r.m.push_back(measure(run(group), false, tag, {{"VE_DDS_STATE_NO_DEADLINE", "1"}}));
+    }
+    rows.push_back(r);
+  }
+  const std::string load_after = loadavg();
+  std::ostringstream md;
+  char when[64];
+  const std::time_t now = std::time(nullptr);
+  std::strftime(when, sizeof when, "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  md << "`build/tests/bench_scale --mode deadline";
+  if (axis_counts != std::vector<int>{1, 2, 4, 8, 16}) {
+    md << " --axes ";
+    for (std::size_t i = 0; i < axis_counts.size(); ++i) md << (i ? "," : "") << axis_counts[i];
+  }
+  md << "` (tests/plant/scale_bench.cpp), " << when << ", " << std::thread::hardware_concurrency()
+     << " CPUs, load average (1/5/15 min) " << load_before << " before, " << load_after << " after. "
+     << "Every axis at " << static_cast<int>(rate) << " Hz, no subscriber; CPU is utime + stime of the publishing"
+     << " process over " << window << " s after " << warmup << " s of warm-up, in % of one core.\n\n";
+  auto head = [&](const char* what) {
+    md << "| axes | floor, 1 thread |";
+    for (const auto& c : columns) md << " " << c.head << " |";
+    md << " " << what << "\n|---:|---:|";
+    for (std::size_t i = 0; i < columns.size(); ++i) md << "---:|";
+    md << (what[0] ? "---:|---:|\n" : "\n");
+  };
+  char b[128];
+  head("`run` per thread / bare fixed | `run` per thread / floor |");
+  for (const auto& r : rows) {
+    md << "| " << r.n << " | ";
+    std::snprintf(b, sizeof b, "%.1f %%", floor1.cpu_pct);
+    md << b << " |";
+    for (const auto& m : r.m) {
+      std::snprintf(b, sizeof b, " %.1f %% |", m.cpu_pct);
+      md << b;
+    }
+    std::snprintf(b, sizeof b, " %.2f | %.2f |\n", r.m[4].cpu_pct / r.m[0].cpu_pct, r.m[4].cpu_pct / floor1.cpu_pct);
+    md << b;
+  }
+  md << "\nVoluntary context switches per second of the publisher's threads other than the pacing thread(s)"
+        " (Fast DDS's event and receive threads, `run`'s main thread; /proc/PID/task/*/status over the same"
+        " window); the floor's column is its one thread's.\n\n";
+  head("");
+  for (const auto& r : rows) {
+    std::snprintf(b, sizeof b, "| %d | %.0f |", r.n, floor1.other_switches_per_s + floor1.pacing_switches_per_s);
+    md << b;
+    for (const auto& m : r.m) {
+      std::snprintf(b, sizeof b, " %.0f |", m.other_switches_per_s);
+      md << b;
+    }
+    md << "\n";
+  }
+  md << "\nThe same, the pacing thread(s): `run`'s sample threads (named ve-...), the bare writer's main thread.\n\n";
+  head("");
+  for (const auto& r : rows) {
+    std::snprintf(b, sizeof b, "| %d | %.0f |", r.n, floor1.other_switches_per_s + floor1.pacing_switches_per_s);
+    md << b;
+    for (const auto& m : r.m) {
+      std::snprintf(b, sizeof b, " %.0f |", m.pacing_switches_per_s);
+      md << b;
+    }
+    md << "\n";
+  }
+  md << "\nSamples published per second (over the publisher's whole life, start-up included).\n\n";
+  head("");
+  for (const auto& r : rows) {
+    std::snprintf(b, sizeof b, "| %d | - |", r.n);
+    md << b;
+    for (const auto& m : r.m) {
+      std::snprintf(b, sizeof b, " %.0f |", m.pub_per_s);
+      md << b;
+    }
+    md << "\n";
+  }
+  std::printf("%s", md.str().c_str());
+  std::ofstream(out_file) << md.str();
+  std::fprintf(stderr, "written to %s\n", out_file.c_str());
+  fs::remove_all(dir);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -198,6 +377,7 @@ int main(int argc, char** argv) {
   int domain = 97;
   const fs::path src = VE_BENCH_SOURCE_DIR;
   std::string out_file = (src / "tests/bench/results/scale.md").string();
+  std::string mode = "axes";
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--axes") {
@@ -209,8 +389,10 @@ int main(int argc, char** argv) {
     else if (k == "--warmup") warmup = std::atof(v.c_str());
     else if (k == "--domain") domain = std::atoi(v.c_str());
     else if (k == "--out") out_file = v;
+    else if (k == "--mode" && (v == "axes" || v == "deadline")) mode = v;
     else {
-      std::fprintf(stderr, "usage: bench_scale [--axes 1,2,4,8,16] [--window S] [--warmup S] [--domain D] [--out FILE]\n");
+      std::fprintf(stderr, "usage: bench_scale [--mode axes|deadline] [--axes 1,2,4,8,16] [--window S] [--warmup S] "
+                           "[--domain D] [--out FILE]\n");
       return 2;
     }
   }
@@ -222,7 +404,8 @@ int main(int argc, char** argv) {
   const std::string d = std::to_string(domain);
 
   // One measurement: start the subscriber (if any), then the publisher; warm up; window.
-  auto measure = [&](const std::vector<std::string>& pub_args, bool with_sub, const std::string& tag) {
+  auto measure = [&](const std::vector<std::string>& pub_args, bool with_sub, const std::string& tag,
+                     const std::vector<std::pair<std::string, std::string>>& env = {}) {
     Measure m;
     Child sub;
     const std::string sub_out = (dir / (tag + ".sub.out")).string();
@@ -232,14 +415,18 @@ int main(int argc, char** argv) {
     }
     const std::string pub_out = (dir / (tag + ".out")).string(), pub_err = (dir / (tag + ".err")).string();
     const auto t_spawn = std::chrono::steady_clock::now();
-    Child pub = spawn(pub_args, pub_out, pub_err, profiles);
+    Child pub = spawn(pub_args, pub_out, pub_err, profiles, env);
     std::this_thread::sleep_for(std::chrono::duration<double>(warmup));
     const double p0 = cpu_seconds(pub.pid), s0 = with_sub ? cpu_seconds(sub.pid) : 0;
     const unsigned long long r0 = with_sub ? received(sub_out) : 0;
+    const TaskSwitches w0 = task_switches(pub.pid);
     const auto t0 = std::chrono::steady_clock::now();
     std::this_thread::sleep_for(std::chrono::duration<double>(window));
     const double p1 = cpu_seconds(pub.pid), s1 = with_sub ? cpu_seconds(sub.pid) : 0;
+    const TaskSwitches w1 = task_switches(pub.pid);
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    m.pacing_switches_per_s = switches_per_s(w0.pacing, w1.pacing, dt);
+    m.other_switches_per_s = switches_per_s(w0.other, w1.other, dt);
     if (p0 >= 0 && p1 >= 0) m.cpu_pct = 100.0 * (p1 - p0) / dt;
     if (with_sub) {
       // ALIVE lines come every 250 ms: give the last one time to be written.
@@ -259,7 +446,8 @@ int main(int argc, char** argv) {
       if (e.find("maximum number of instances") != std::string::npos)
         std::fprintf(stderr, "  %-22s the subscriber's reader reached its maximum number of instances\n", tag.c_str());
     }
-    std::fprintf(stderr, "  %-22s cpu %6.1f %% published %.0f/s%s\n", tag.c_str(), m.cpu_pct, m.pub_per_s,
+    std::fprintf(stderr, "  %-22s cpu %6.1f %% published %.0f/s switches/s %.0f + %.0f%s\n", tag.c_str(), m.cpu_pct,
+                 m.pub_per_s, m.pacing_switches_per_s, m.other_switches_per_s,
                  with_sub ? (" | subscriber " + std::to_string(m.sub_cpu_pct).substr(0, 5) + " %, received " +
                              std::to_string(static_cast<long long>(m.rx_per_s)) + "/s")
                                 .c_str()
@@ -274,6 +462,8 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, ", %.0f s window after %.0f s warm-up, domain %d, load average %s\n", window, warmup, domain,
                load_before.c_str());
   const Measure floor1 = measure({VE_PACE_FLOOR, "--threads", "1"}, false, "floor-1");
+  if (mode == "deadline") return deadline_table(measure, floor1, axis_counts, src, dir, d, seconds, window, warmup,
+                                                rate, load_before, out_file);
   struct Row {
     int n;
     Measure run, run_sub, run_per_axis, bare, bare_sub, floor_n;
@@ -310,10 +500,10 @@ int main(int argc, char** argv) {
      << "Every axis at " << static_cast<int>(rate) << " Hz; CPU is utime + stime of the publishing process over "
      << window << " s after " << warmup << " s of warm-up, in % of one core.\n\n"
      << "* `run`: `virtual-encoder run` on the first N axes of `config/machines/sim-8axis.yaml` (16: its eight twice),"
-        " one state writer per axis; all axes in one sample thread (`realtime.sample_loop: shared`, the"
-        " default: one wake-up per tick for every axis).\n"
-     << "* `run`, thread per axis: the same with `realtime.sample_loop: per_axis`, one sample thread per axis"
-        " (the design before the shared loop), measured in the same run.\n"
+        " all axes in one sample thread (`realtime.sample_loop: shared`, the default: one wake-up per tick for"
+        " every axis) and one state writer for them (`dds.state_writer: per_group`, the default).\n"
+     << "* `run`, thread per axis: the same with `realtime.sample_loop: per_axis`, one sample thread and one"
+        " state writer per axis (the design before the shared loop), measured in the same run.\n"
      << "* `run` / bare, `run` / floor: `run`'s CPU over the bare writer's and over the one-thread floor's, both"
         " without a subscriber (the issue's targets: <= 1.5 and <= 3 at 8 axes).\n"
      << "* bare writer: `ve_bare_writer`, one thread paced like the product's that writes N samples of"
