@@ -60,8 +60,8 @@ inline void run_guest_suite(const std::string& run_dir_prefix, const std::string
       << "export VE_TEST_DDS_DOMAINS_HELD=" << domains_held << "\n"
       // The guest receives the state stream: its socket buffers as the package sets
       // them on every such host (docs/dds-interface.md, Buffer sizes). With the
-      // kernel's default cap the emulated guest's DDS readers lost up to a quarter
-      // of the stream whenever their thread waited for a core.
+      // kernel's default cap (208 KiB, 20 ms of two axes at 4 kHz) the emulated
+      // guest's DDS readers lost samples whenever their thread waited for a core.
       << "sysctl -q -p " << src << "/deploy/sysctl/60-virtual-encoder.conf\n"
       << "cd " << out << "\n"
       << exe << " --gtest_filter='" << gtest_filter << "' --gtest_color=no > " << out << "/guest.log 2>&1\n"
