@@ -123,12 +123,17 @@ TEST(StateWriterGroup, OneWriterPerGroupMissesPerAxisAndNoneAfterRetiring) {
                 static_cast<unsigned long long>(writer.deadline_early_reports()));
     EXPECT_GE(reported, 1u);
     EXPECT_GE(reported_5, 1u);
-    EXPECT_LT(others_max, writer.deadline_missed(5));
     EXPECT_GE(silent_missed, reported);
     EXPECT_GE(writer.counters(group[1]).episodes.load(), 1u);
     // The others were written meanwhile: a loaded host may delay the writing thread past
-    // a deadline now and then, but for all of them alike, so axis 2 has its silence more.
-    EXPECT_LT(others_max, silent_missed);
+    // a deadline now and then, but for all of them alike, so axes 2 and 5 have their
+    // silence more. Judged at real speed only (speed.hpp): under ThreadSanitizer this
+    // thread cannot keep a 250 us tick, and every axis misses for that (156 misses of
+    // another axis against 145 of axis 2 in one such run).
+    if (ve::test::kRealTimeFigures) {
+      EXPECT_LT(others_max, writer.deadline_missed(5));
+      EXPECT_LT(others_max, silent_missed);
+    }
     // Every axis of the group was received, through the one writer.
     ASSERT_TRUE(wait_until(
         [&] {
