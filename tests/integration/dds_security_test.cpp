@@ -546,13 +546,26 @@ TEST(DdsSecurity, OnlyThePermittedMonitorReadsTheState) {
   ASSERT_TRUE(forged.ok());
   ASSERT_TRUE(forged.read_state()) << "its forged permissions grant it ve/* locally";
   // The positive control of the same run.
-  Peer monitor(domain, "monitor", pki.properties("monitor"));
-  ASSERT_TRUE(monitor.ok());
-  ASSERT_TRUE(monitor.read_state());
-  const std::vector<const Peer*> local{&open, &intruder, &forged, &monitor};
+  auto monitor_peer = std::make_unique<Peer>(domain, "monitor", pki.properties("monitor"));
+  ASSERT_TRUE(monitor_peer->ok());
+  ASSERT_TRUE(monitor_peer->read_state());
 
   ChildProcess encoder(run_args(encoder_machine, domain), (dir.path / "run.log").string());
   ASSERT_TRUE(encoder.started());
+  // Created before the encoder, it meets it together with three other secure
+  // participants: Fast DDS 2.9.1 can leave that pair unmatched for good (top of this
+  // file). If it has received nothing within the wait, it is created once more (a new GUID).
+  if (!wait_until([&] { return monitor_peer->states_received() > 4000; }, ve::test::patience(30s))) {
+    std::printf("[ note     ] the monitor participant received %llu samples (matched %d) within the wait; it is "
+                "re-created once (Fast DDS 2.9.1 race, top of dds_security_test.cpp)\n",
+                static_cast<unsigned long long>(monitor_peer->states_received()), monitor_peer->state_writers_matched());
+    std::fflush(stdout);
+    monitor_peer = std::make_unique<Peer>(domain, "monitor", pki.properties("monitor"));
+    ASSERT_TRUE(monitor_peer->ok());
+    ASSERT_TRUE(monitor_peer->read_state());
+  }
+  Peer& monitor = *monitor_peer;
+  const std::vector<const Peer*> local{&open, &intruder, &forged, &monitor};
   ASSERT_TRUE(wait_until([&] { return monitor.states_received() > 4000; }, ve::test::patience(30s)))
       << "received " << monitor.states_received() << ", matched " << monitor.state_writers_matched() << "\n"
       << encoder.log();
