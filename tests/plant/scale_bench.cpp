@@ -330,38 +330,27 @@ int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<
   md << "\nVoluntary context switches per second of the publisher's threads other than the pacing thread(s)"
         " (Fast DDS's event and receive threads, `run`'s main thread; /proc/PID/task/*/status over the same"
         " window); the floor's column is its one thread's.\n\n";
-  head("");
-  for (const auto& r : rows) {
-    std::snprintf(b, sizeof b, "| %d | %.0f |", r.n, floor1.other_switches_per_s + floor1.pacing_switches_per_s);
-    md << b;
-    for (const auto& m : r.m) {
-      std::snprintf(b, sizeof b, " %.0f |", m.other_switches_per_s);
+  // One table per measure: a row per axis count, the floor's column first ("-" where it has none).
+  const auto table = [&](double Measure::*field, bool floor_column) {
+    head("");
+    for (const auto& r : rows) {
+      if (floor_column)
+        std::snprintf(b, sizeof b, "| %d | %.0f |", r.n, floor1.other_switches_per_s + floor1.pacing_switches_per_s);
+      else
+        std::snprintf(b, sizeof b, "| %d | - |", r.n);
       md << b;
+      for (const auto& m : r.m) {
+        std::snprintf(b, sizeof b, " %.0f |", m.*field);
+        md << b;
+      }
+      md << "\n";
     }
-    md << "\n";
-  }
+  };
+  table(&Measure::other_switches_per_s, true);
   md << "\nThe same, the pacing thread(s): `run`'s sample threads (named ve-...), the bare writer's main thread.\n\n";
-  head("");
-  for (const auto& r : rows) {
-    std::snprintf(b, sizeof b, "| %d | %.0f |", r.n, floor1.other_switches_per_s + floor1.pacing_switches_per_s);
-    md << b;
-    for (const auto& m : r.m) {
-      std::snprintf(b, sizeof b, " %.0f |", m.pacing_switches_per_s);
-      md << b;
-    }
-    md << "\n";
-  }
+  table(&Measure::pacing_switches_per_s, true);
   md << "\nSamples published per second (over the publisher's whole life, start-up included).\n\n";
-  head("");
-  for (const auto& r : rows) {
-    std::snprintf(b, sizeof b, "| %d | - |", r.n);
-    md << b;
-    for (const auto& m : r.m) {
-      std::snprintf(b, sizeof b, " %.0f |", m.pub_per_s);
-      md << b;
-    }
-    md << "\n";
-  }
+  table(&Measure::pub_per_s, false);
   std::printf("%s", md.str().c_str());
   std::ofstream(out_file) << md.str();
   std::fprintf(stderr, "written to %s\n", out_file.c_str());
