@@ -914,7 +914,6 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     }
     for (std::size_t b = 0; b < sq.size(); ++b)
       if (cnt[b] >= 10) outside_std_m = std::max(outside_std_m, std::sqrt(std::max(0.0, (sq[b] - var[b]) / cnt[b])));
-    rep.outside_passes_std_m = outside_std_m;
   }
   rep.converged = converged;
   rep.last_change_m = change_m;

@@ -137,10 +137,6 @@ struct SelfCalibrationReport {
   std::string hall_delay_source;
   double hall_delay_reproduced_s = 0.0; ///< what forward/backward gave against the self-made position (a check)
   std::vector<std::string> iterations;  ///< one line per iteration: what it found
-  /// Beyond the slow passes (the turnarounds) the table rests on the accelerometer's
-  /// bridges: what they disagree by, the worst quarter pitch, one sigma [m]
-  /// (SensorModel::table_outside_std_m).
-  double outside_passes_std_m = 0.0;
   bool converged = false;               ///< the iterations settled (see SelfCalibrationConfig)
   double last_change_m = 0.0;           ///< how far the last iteration moved the estimate, RMS [m]
 };
