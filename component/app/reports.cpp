@@ -34,6 +34,9 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
   line("  forward and backward tables differ by %.3f um -> Hall delay %.2f us\n", r.forward_backward_shift_um,
        r.hall_delay_s * 1e6);
   line("  readings about the table: %.3f mV RMS\n", r.table_residual_mv);
+  line("  the table's own noise at a node: %.3f mV (half what is left of the forward and backward tables' difference "
+       "beyond the delay); where the carriage stands it repeats, and sigma holds it\n",
+       r.table_noise_mv);
   line("Fast motion (coil field, accelerometer)\n");
   line("  %d samples with |a| >= 1 m/s^2, up to %.1f m/s^2\n", r.dynamic_samples, r.dynamic_max_accel_mps2);
   line("  coil field: %.3f mV per m/s^2 (common mode on all Halls)\n", r.coil_field_v_per_mps2 * 1e3);

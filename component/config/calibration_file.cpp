@@ -207,6 +207,8 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     model("temperature_c", cal.model.temperature_c, -60.0, 200.0, "deg C");
     // Optional: only from a calibration without a ruler.
     model("track_scale_std", cal.model.track_scale_std, 0.0, 0.01, "");
+    // Optional: files written before it was measured have none (taken as 0).
+    model("table_noise_v", cal.model.table_noise_v, 0.0, 0.1, "V");
     // Optional, together: only from a calibration without a ruler.
     const bool from = m.get("table_trusted_from_m", cal.model.table_trusted_from_m);
     const bool to = m.get("table_trusted_to_m", cal.model.table_trusted_to_m);
@@ -378,6 +380,14 @@ std::string format_calibration(const core::Calibration& cal) {
     if (std::isfinite(m.temperature_c)) {
       std::snprintf(buf, sizeof buf, "  temperature_c: %.3f         # the sensor node's mean temperature during calibration\n",
                     m.temperature_c);
+      out += buf;
+    }
+    if (m.table_noise_v > 0.0) {
+      char buf[128];
+      std::snprintf(buf, sizeof buf,
+                    "  table_noise_v: %.7f        # the table's own noise at a node; sigma holds it where the carriage "
+                    "stands\n",
+                    m.table_noise_v);
       out += buf;
     }
     if (m.track_scale_std > 0.0) {

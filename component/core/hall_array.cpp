@@ -225,6 +225,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
     var_x = noise_var * gain_sq + gain_prior_share + joint;
   }
   fix.quantisation_m2 = quantisation_v2_ * gain_sq;
+  fix.sensitivity_m2_per_v2 = gain_sq;
   fix.drift_m2 = std::max(0.0, drift);
   fix.ok = true;
   fix.variance_m2 = var_x + floor_m2_;

@@ -35,6 +35,10 @@ struct HallFix {
   /// carriage stands still: the ADC's quantisation, which the sensors' own noise
   /// dithers only partly (variance_m2 counts it as white noise) [m^2].
   double quantisation_m2 = 0.0;
+  /// The sum of the squared sensitivities of the position to each sensor's reading
+  /// [m^2/V^2]: a reading error common to the table's place (its noise,
+  /// SensorModel::table_noise_v) moves the fix by this times its variance.
+  double sensitivity_m2_per_v2 = 0.0;
   /// Likewise what the adaptation is still unsure of in the sensors' gains and
   /// offsets beyond its start-up prior (HallAdaptation::combined_variance, with the
   /// sensors' correlations once they are learnt jointly): it repeats

@@ -329,6 +329,30 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   rep.forward_backward_shift_um = shift_m * 1e6;
   const double hall_delay = shift_m / (vf + vb);
   rep.hall_delay_s = hall_delay;
+  {
+    // What is left of the forward and backward tables' difference once the delay's
+    // shift is taken out is their noise: each node fits the few readings near it.
+    // The combined table averages both: half the difference's RMS.
+    double sum = 0.0;
+    long n = 0;
+    for (int s = 0; s < nh; ++s) {
+      for (int k = 1; k < table_f.points - 1; ++k) {
+        const std::size_t i = static_cast<std::size_t>(s) * table_f.points + k;
+        const double mean = 0.5 * (table_f.v[i] + table_b.v[i]);
+        if (!std::isfinite(mean) ||
+            !std::isfinite(table_f.v[i - 1] + table_f.v[i + 1] + table_b.v[i - 1] + table_b.v[i + 1]))
+          continue;
+        if (!in_range_reading(motor, mean)) continue;
+        const double slope = 0.25 * ((table_f.v[i + 1] - table_f.v[i - 1]) + (table_b.v[i + 1] - table_b.v[i - 1])) /
+                             table_f.step_m;
+        if (std::abs(slope) < 0.3 * smax) continue;
+        const double r = table_f.v[i] - table_b.v[i] + slope * shift_m;
+        sum += r * r;
+        ++n;
+      }
+    }
+    rep.table_noise_mv = n > 0 ? 0.5 * std::sqrt(sum / static_cast<double>(n)) * 1e3 : 0.0;
+  }
 
   // --- 2. a first combined table, readings placed where the Halls saw them ----------
   auto build_table = [&](double delay, double coil, HallTable& table) -> bool {
@@ -495,6 +519,8 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   // --- 4. the result and how well it explains the recording ---------------------------
   out.table = table;
   out.model.hall_delay_s = std::max(0.0, hall_delay);
+  // To 0.1 uV, as the calibration file writes it (the checksum is over what it holds).
+  out.model.table_noise_v = std::round(std::min(rep.table_noise_mv * 1e-3, 0.1) * 1e7) / 1e7;
   out.model.coil_field_v_per_mps2 = rep.coil_field_v_per_mps2;
   out.model.accel_delay_s = rep.accel_delay_s;
   out.model.accel_bias_mps2 = rep.accel_bias_mps2;

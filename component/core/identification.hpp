@@ -95,6 +95,9 @@ struct IdentificationReport {
   double vibration_hz = 0.0;             ///< frame vibration found in the accelerometer; 0 = none
   double vibration_mps2 = 0.0;           ///< its amplitude
   double vibration_floor_mps2 = 0.0;     ///< median of the residual spectrum
+  /// The table's own noise at a node (half the forward and backward tables' RMS
+  /// difference once the Hall delay's shift is out): SensorModel::table_noise_v [mV].
+  double table_noise_mv = 0.0;
   double table_residual_mv = 0.0;        ///< RMS of the readings about the final table (sweep, in range)
   double position_residual_um = 0.0;     ///< RMS of the Hall position about the reference (fast motion, compensated)
   double position_residual_uncompensated_um = 0.0;  ///< the same without delay and coil-field compensation

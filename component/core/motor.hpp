@@ -78,6 +78,13 @@ struct SensorModel {
   double table_trusted_from_m = std::numeric_limits<double>::quiet_NaN();
   double table_trusted_to_m = std::numeric_limits<double>::quiet_NaN();
   double table_outside_std_m = 0.0;
+  /// The table's own error at any one place, one sigma, as a sensor reading [V]: each
+  /// node is a fit to the few sweep readings near it, whose noise it keeps. Measured by
+  /// the calibration from its forward and backward passes (independent readings of the
+  /// same track). It repeats wherever the carriage stands, so no averaging of fixes
+  /// there removes it; in motion the filter averages it over the nodes it crosses. 0:
+  /// not measured (older files), taken as nothing.
+  double table_noise_v = 0.0;
   bool trusted_span_known() const { return std::isfinite(table_trusted_from_m) && std::isfinite(table_trusted_to_m); }
 };
 

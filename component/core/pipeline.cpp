@@ -43,6 +43,7 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   disagreement_decay_ = std::exp(-1.0 / (kDisagreementAverageS * config.motor.sample_rate_hz));
   hold_decay_ = std::exp(-1.0 / (kDisagreementHoldS * config.motor.sample_rate_hz));
   settle_samples_ = std::max(1, static_cast<int>(std::lround(kAdaptSettleS * config.motor.sample_rate_hz)));
+  table_noise_v2_ = config.sensors.table_noise_v * config.sensors.table_noise_v;
   {
     // A sensor's slope, root mean square over a magnet period: 2 pi A / (pitch sqrt 2).
     const double slope = 2.0 * M_PI * config.motor.hall.amplitude_v / (config.motor.magnet_pitch_m * std::sqrt(2.0));
@@ -401,6 +402,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       const double averaged_s = kf_.period_s() * std::max(1.0, fix_var / std::max(p_pos, 1e-30));
       const double steps = speed * averaged_s / quantisation_travel_m_;
       quantisation_var_m2_ = fix.quantisation_m2 / (1.0 + steps);
+      // Likewise the table's own noise, independent from node to node: averaged over
+      // the nodes the carriage crosses.
+      const double nodes = speed * averaged_s / hall_.table().step_m;
+      table_var_m2_ = table_noise_v2_ * fix.sensitivity_m2_per_v2 / (1.0 + nodes);
       // A gain or offset error moves the fixes by a pattern that repeats with the
       // magnet period: it averages out over a good part of one.
       const double quarters = speed * averaged_s / (0.25 * cfg_.motor.magnet_pitch_m);
@@ -458,8 +463,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   const bool beyond_passes = cfg_.sensors.trusted_span_known() && (out_.position_m < cfg_.sensors.table_trusted_from_m ||
                                                                     out_.position_m > cfg_.sensors.table_trusted_to_m);
   const double beyond_m = beyond_passes ? cfg_.sensors.table_outside_std_m : 0.0;
-  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + drift_var_m2_ +
-                                  scale_m * scale_m + beyond_m * beyond_m);
+  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + table_var_m2_ +
+                                  drift_var_m2_ + scale_m * scale_m + beyond_m * beyond_m);
   const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));

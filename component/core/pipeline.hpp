@@ -132,6 +132,10 @@ class AxisPipeline {
   /// The last fix's quantisation error that the filter cannot average away at
   /// this speed (HallFix::quantisation_m2), added to the published sigma [m^2].
   double quantisation_var_m2_ = 0.0;
+  /// Likewise the table's own noise (SensorModel::table_noise_v) [m^2], and that
+  /// noise's variance as a reading [V^2].
+  double table_var_m2_ = 0.0;
+  double table_noise_v2_ = 0.0;
   /// Likewise the sensors' gain and offset uncertainty (HallFix::drift_m2) [m^2].
   double drift_var_m2_ = 0.0;
   /// The velocity error that drift's pattern makes at the current speed [(m/s)^2].

@@ -73,8 +73,12 @@ TEST_P(RealisticAccuracy, MeetsSpecAndTargetWithHonestSigma) {
   const auto& [machine, sc] = GetParam();
   const Realistic& r = realistic(machine);
   ASSERT_TRUE(r.report.good);
+  std::uint64_t samples = 0, pos_inside = 0, vel_inside = 0;
   for (std::uint64_t seed : {101u, 202u}) {
     const auto e = run(r, sc, seed);
+    samples += e.position_m.count();
+    pos_inside += e.position_within_2sigma;
+    vel_inside += e.velocity_within_2sigma;
     std::printf("[ figures  ] %-34s %-16s seed %3llu: position rms %.3f um (bias %+.3f, max %.3f) | velocity rms "
                 "%.4f mm/s (bias %+.4f, max %.3f) | 2-sigma coverage %.1f %% / %.1f %%\n",
                 machine.c_str(), sc.name, static_cast<unsigned long long>(seed), e.position_m.rms() * 1e6,
@@ -89,12 +93,21 @@ TEST_P(RealisticAccuracy, MeetsSpecAndTargetWithHonestSigma) {
     // This product's target beyond the spec.
     EXPECT_LE(e.position_m.rms(), 0.5e-6);
     EXPECT_LE(e.velocity_mps.rms(), 0.1e-3);
-    // The published sigmas are honest: about 95 % of errors inside +-2 sigma.
+    // The published sigmas are honest: about 95 % of errors inside +-2 sigma; no run
+    // may have too many outside (sigma too small).
     EXPECT_GE(e.position_coverage(), 0.85);
-    EXPECT_LE(e.position_coverage(), 0.995);
     EXPECT_GE(e.velocity_coverage(), 0.85);
-    EXPECT_LE(e.velocity_coverage(), 0.995);
   }
+  // ... nor too few, over both runs: within one short run the errors are correlated
+  // over tenths of a second (on the realistic machine at 5 m/s^2 one run has 91 % and
+  // the other 99.6 % inside). At standstill the position's error is mostly what the
+  // table makes of that one place (its noise, which sigma holds,
+  // SensorModel::table_noise_v): one draw, inside 2 sigma or not, so whether sigma is
+  // too large there is judged over many places (StandstillSigmaHoldsOverPlaces).
+  const double pos_coverage = static_cast<double>(pos_inside) / static_cast<double>(samples);
+  const double vel_coverage = static_cast<double>(vel_inside) / static_cast<double>(samples);
+  if (sc.kind != MotionProfileConfig::Kind::standstill) EXPECT_LE(pos_coverage, 0.995);
+  EXPECT_LE(vel_coverage, 0.995);
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -110,6 +123,36 @@ INSTANTIATE_TEST_SUITE_P(
         if (c == '-') c = '_';
       return m + "_" + std::get<1>(info.param).name;
     });
+
+// At standstill the position's error is what the table, the ADC's steps and the
+// sensors make of that one place: sigma is honest if, over many places, the errors
+// are about sigma in size (too many outside 2 sigma: sigma too small; errors far
+// inside it everywhere: sigma too large, VALID withheld for nothing).
+TEST(RealisticAccuracyStandstill, StandstillSigmaHoldsOverPlaces) {
+  const Realistic& r = realistic("sim-realistic.yaml");
+  constexpr int kPlaces = 24;
+  const double pitch = r.axis.motor.magnet_pitch_m;
+  double z2 = 0.0;
+  int outside = 0;
+  for (int k = 0; k < kPlaces; ++k) {
+    // Two magnet periods' worth of places, not on the table's grid.
+    const double x = 0.3 + 2.0 * pitch * (k + 0.37) / kPlaces;
+    const Scenario sc{"standstill", MotionProfileConfig::Kind::standstill, x, 0, 0, 0.15, 0.3};
+    const auto e = run(r, sc, 300u + static_cast<std::uint64_t>(k));
+    ASSERT_GT(e.position_m.count(), 100u);
+    // The mean error over the window against the mean sigma: the noise averages, what
+    // belongs to the place stays.
+    const double z = e.position_m.bias() / std::sqrt(e.position_std_m2_mean());
+    z2 += z * z;
+    if (std::abs(z) > 2.0) ++outside;
+  }
+  const double rms_z = std::sqrt(z2 / kPlaces);
+  std::printf("[ figures  ] standstill at %d places: error / sigma %.2f RMS, %d outside 2 sigma\n", kPlaces, rms_z,
+              outside);
+  EXPECT_LE(outside, kPlaces / 6);  // about 1 in 20 for an honest sigma
+  EXPECT_GE(rms_z, 0.4);
+  EXPECT_LE(rms_z, 1.5);
+}
 
 TEST(RealisticCalibration, IdentifiesTheSimulatedSensorModel) {
   const Realistic& r = realistic("sim-realistic.yaml");

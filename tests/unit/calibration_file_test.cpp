@@ -61,6 +61,18 @@ class CalibrationFile : public ::testing::Test {
     return ss.str();
   }
   static void spit(const std::string& p, const std::string& text) { std::ofstream(p, std::ios::binary) << text; }
+  /// x.cal.yaml with sensor_model's `key` set to `value` is refused, naming the key.
+  void expect_refused_with(const std::string& key, const std::string& value) {
+    const std::string p = path("x.cal.yaml");
+    std::string text = slurp(p);
+    const auto at = text.find(key + ": ");
+    ASSERT_NE(at, std::string::npos) << key;
+    text.replace(at, text.find(' ', at + key.size() + 2) - at, key + ": " + value);
+    spit(p, text);
+    const CalibrationLoad bad = load_calibration_file(p, motor_);
+    ASSERT_FALSE(bad.ok());
+    EXPECT_NE(to_string(bad.errors).find("sensor_model." + key), std::string::npos) << to_string(bad.errors);
+  }
 
   /// Names in the directory other than `keep`: leftover temp files.
   std::vector<std::string> others(const std::string& keep) const {
@@ -129,15 +141,23 @@ TEST_F(CalibrationFile, ARulerLessCalibrationKeepsItsScaleUncertainty) {
   EXPECT_NEAR(r.calibration.model.track_scale_std, 12.345678e-6, 1e-15);
   EXPECT_EQ(core::calibration_checksum(r.calibration), cal_.info.id);
   // Out of its range: refused with the key.
-  const std::string p = path("x.cal.yaml");
-  std::string text = slurp(p);
-  const auto at = text.find("track_scale_std: ");
-  ASSERT_NE(at, std::string::npos);
-  text.replace(at, text.find(' ', at + 17) - at, "track_scale_std: 0.5");
-  spit(p, text);
-  const CalibrationLoad bad = load_calibration_file(p, motor_);
-  ASSERT_FALSE(bad.ok());
-  EXPECT_NE(to_string(bad.errors).find("sensor_model.track_scale_std"), std::string::npos) << to_string(bad.errors);
+  expect_refused_with("track_scale_std", "0.5");
+}
+
+TEST_F(CalibrationFile, KeepsTheTablesOwnNoiseAndReadsOlderFilesWithout) {
+  // Older files have none: the file and its checksum are as before, read as 0.
+  EXPECT_EQ(slurp(write_good("old.cal.yaml")).find("table_noise_v"), std::string::npos);
+  cal_.model.table_noise_v = 0.0002713;  // to 0.1 uV, as identification rounds it
+  cal_.info.id = core::calibration_checksum(cal_);
+  core::Calibration older = cal_;
+  older.model.table_noise_v = 0.0;
+  EXPECT_NE(core::calibration_checksum(older), cal_.info.id);  // part of what the id names
+  const CalibrationLoad r = load_calibration_file(write_good(), motor_);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  EXPECT_NEAR(r.calibration.model.table_noise_v, 0.0002713, 1e-15);
+  EXPECT_EQ(core::calibration_checksum(r.calibration), cal_.info.id);
+  // Out of its range: refused, naming the key.
+  expect_refused_with("table_noise_v", "-0.001");
 }
 
 TEST_F(CalibrationFile, ARulerLessCalibrationKeepsTheStretchItsPassesMade) {
