@@ -284,8 +284,13 @@ TEST_P(PopulationWarmMotion, SensorsDriftedByTemperatureAreLearntTogetherInTenth
                   r.err.velocity_mps.rms() * 1e3, 100 * r.err.position_coverage(), 100 * r.err.velocity_coverage(),
                   100 * r.valid_fraction());
       const bool sweeps = sc.name == "multisine" || sc.name == "point-to-point";
-      EXPECT_LE(r.err.position_m.rms(), sweeps ? 1e-6 : 3.5e-6) << bench::condition_name(cond) << " " << sc.name;
-      EXPECT_LE(r.err.velocity_mps.rms(), sweeps ? 0.2e-3 : 0.7e-3) << bench::condition_name(cond) << " " << sc.name;
+      // Started warm at 1 m/s, learning begins once the filter has followed the fixes
+      // for 10 ms: on motor 8 2.0-2.1 um and 0.47-0.53 mm/s while it waited 50 ms.
+      const bool at_speed = sc.name == "1 m/s";
+      EXPECT_LE(r.err.position_m.rms(), sweeps ? 1e-6 : at_speed ? 1.5e-6 : 3.5e-6)
+          << bench::condition_name(cond) << " " << sc.name;
+      EXPECT_LE(r.err.velocity_mps.rms(), sweeps ? 0.2e-3 : at_speed ? 0.4e-3 : 0.7e-3)
+          << bench::condition_name(cond) << " " << sc.name;
       EXPECT_EQ(r.flagged, 0u) << bench::condition_name(cond) << " " << sc.name << ": no healthy sensor flagged";
     }
   }
