@@ -38,6 +38,11 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
        "beyond the delay); where the carriage stands it repeats, and sigma holds it\n",
        r.table_noise_mv);
   line("Fast motion (coil field, accelerometer)\n");
+  if (r.fast_hall_delay_std_s > 0.0)
+    line("  Hall positions against the reference, regressed on velocity: Hall delay %.3f us +- %.3f us (1 sigma); %s\n",
+         r.fast_hall_delay_s * 1e6, r.fast_hall_delay_std_s * 1e6,
+         r.hall_delay_from_fast_motion ? "the calibration uses it (the sweep's agrees within 1 us)"
+                                       : "NOT used: it disagrees with the sweep's (see the problems)");
   line("  %d samples with |a| >= 1 m/s^2, up to %.1f m/s^2\n", r.dynamic_samples, r.dynamic_max_accel_mps2);
   line("  coil field: %.3f mV per m/s^2 (common mode on all Halls)\n", r.coil_field_v_per_mps2 * 1e3);
   line("  accelerometer%s: scale %.5f, bias %+.4f m/s^2, delay %.1f us, fit residual %.4f m/s^2 RMS\n",

@@ -82,7 +82,13 @@ struct IdentificationReport {
   int sweep_forward_samples = 0;
   int sweep_backward_samples = 0;
   double sweep_speed_mps = 0.0;          ///< mean |v| of the table samples
-  double hall_delay_s = 0.0;
+  double hall_delay_s = 0.0;              ///< from the slow sweep's two directions
+  /// The Hall delay the fast motion gives (its Hall positions against the reference,
+  /// regressed on velocity) and that estimate's standard error [s]; 0 without fast
+  /// motion or without an independent reference. hall_delay_from_fast_motion: it
+  /// agreed with the sweep's and the calibration took it.
+  double fast_hall_delay_s = 0.0, fast_hall_delay_std_s = 0.0;
+  bool hall_delay_from_fast_motion = false;
   double forward_backward_shift_um = 0.0;  ///< forward minus backward table, as a position shift (= 2 v d)
   int dynamic_samples = 0;
   double dynamic_max_accel_mps2 = 0.0;
