@@ -210,6 +210,15 @@ void differentiate(const std::vector<double>& x, double ts, int m, std::vector<d
   }
 }
 
+void judge_accelerometer(double scale, double delay_s, double max_delay_s, std::vector<std::string>& problems) {
+  if (scale < 0.8 || scale > 1.2)
+    problems.push_back(fmt("the accelerometer scale is %.3f: wrong sensitivity or axis in the configuration", scale));
+  if (delay_s > 0.95 * max_delay_s)
+    problems.push_back(fmt("the accelerometer lags by %.0f us or more, the end of the range searched: check its filter "
+                           "settings and that it is sampled with the Halls",
+                           delay_s * 1e6));
+}
+
 bool identify_with_reference(const MotorConfig& motor, const std::vector<ReferenceSegment>& segments,
                              const IdentificationConfig& cfg, Calibration& out, IdentificationReport& rep,
                              std::string& error) {
@@ -663,13 +672,11 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
                                "Halls are not sampled together",
                                hall_delay * 1e6));
   if (have_dynamic) {
-    if (rep.accel_scale < 0.8 || rep.accel_scale > 1.2)
-      rep.problems.push_back(fmt("the accelerometer scale is %.3f: wrong sensitivity or axis in the configuration",
-                                 rep.accel_scale));
-    if (rep.accel_delay_s > 0.95 * cfg.max_accel_delay_s)
-      rep.problems.push_back(fmt("the accelerometer lags by %.0f us or more, the end of the range searched: check "
-                                 "its filter settings and that it is sampled with the Halls",
-                                 rep.accel_delay_s * 1e6));
+    // Without an independent reference the caller fits the accelerometer itself (and
+    // judges that fit): this one, against a reference partly bridged with the
+    // accelerometer, is not the one used.
+    if (cfg.fast_reference_independent)
+      judge_accelerometer(rep.accel_scale, rep.accel_delay_s, cfg.max_accel_delay_s, rep.problems);
     // What the compensation leaves is judged beyond the fixes' own noise: a motor with
     // coarse converters or few sensors has fixes a micrometre or more apart from
     // sample to sample, which the filter averages, and that is not a calibration fault.

@@ -117,6 +117,11 @@ struct IdentificationReport {
   IdentificationCurves curves;           ///< for the report's plots
 };
 
+/// The accelerometer's fitted scale and delay judged: a scale outside 0.8..1.2 (wrong
+/// sensitivity or axis) or a delay at the end of the range searched is a problem,
+/// appended to `problems`.
+void judge_accelerometer(double scale, double delay_s, double max_delay_s, std::vector<std::string>& problems);
+
 /// Identifies table and sensor model. False (with `error`) when the recording
 /// cannot give a result at all (e.g. the sweep does not cover the travel);
 /// otherwise true, with report.good telling whether the result can be trusted.

@@ -990,6 +990,10 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
                   std::abs(previous_scale_change));
     r.problems.push_back(buf);
   }
+  // The accelerometer as this calibration fitted it (against the fast motion's Hall
+  // positions), not as the identification against the self-made reference did.
+  if (r.dynamic_samples >= ic.dynamic_min_samples)
+    judge_accelerometer(out.model.accel_scale, out.model.accel_delay_s, ic.max_accel_delay_s, r.problems);
   if (rep.join_mismatch_m > 2e-6) {
     std::snprintf(buf, sizeof buf,
                   "the slow passes and the Hall positions disagree by %.1f um RMS where they join: the speed was "
