@@ -525,6 +525,9 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     rep.passes_forward = rep.passes_backward = 0;
     double speed_f = 0.0, speed_b = 0.0, lo = std::numeric_limits<double>::infinity(), hi = -lo;
     double join_sq = 0.0, line_sq = 0.0;
+    // The largest scale correction a turnaround's bridge needed and was refused
+    // (more than 50 %): the accelerometer reads far from what the motor file says.
+    double refused_bridge_scale = 0.0;
     long joins = 0, line_n = 0;
     std::vector<std::vector<Pass>> passes(ng);
     for (std::size_t g = 0; g < ng; ++g) {
@@ -626,6 +629,8 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
           const double det = pa_x * v1 - p1_x * va;
           const double alpha = det != 0.0 ? (dx * v1 - p1_x * dv) / det : 0.0;
           const double beta = det != 0.0 ? (pa_x * dv - dx * va) / det : 0.0;
+          if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5)
+            refused_bridge_scale = std::max(refused_bridge_scale, std::abs(alpha));
           if (det != 0.0 && std::isfinite(alpha) && std::isfinite(beta) && std::abs(alpha) < 0.5) {
             for (std::size_t i = from; i < to; ++i) {
               bridged[g][i] = 1;
@@ -817,16 +822,30 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
 
     // The first pass knows positions only relative to its own segment: identify
     // from the sweep alone; later passes place every segment on the table.
+    // A failure after a turnaround's bridge was refused names the accelerometer first.
+    const auto with_bridge_cause = [&](const std::string& what) {
+      if (refused_bridge_scale < 0.5) return what;
+      char cause[320];
+      std::snprintf(cause, sizeof cause,
+                    "the accelerometer's bridge over a turnaround needed its scale corrected by %.0f %% to land on "
+                    "the next slow pass (50 %% is the most allowed): check the accelerometer's sensitivity and axis "
+                    "in the motor file. With the turnarounds left to the Halls: ",
+                    refused_bridge_scale * 100.0);
+      return std::string(cause) + what;
+    };
     if (it == 0) {
       const std::vector<ReferenceSegment> sweep_only{work[sweep_segment]};
-      if (!identify_with_reference(motor, sweep_only, ic, cal, idrep, error)) return false;
+      if (!identify_with_reference(motor, sweep_only, ic, cal, idrep, error)) {
+        error = with_bridge_cause(error);
+        return false;
+      }
     } else if (!identify_with_reference(motor, work, ic, cal, idrep, error)) {
       std::string where;
       for (std::size_t g = 0; g < ng; ++g)
         for (const auto& p : passes[g])
           where += " [segment " + std::to_string(g) + ": " + std::to_string(work[g].reference_m[p.begin] * 1e3) + ".." +
                    std::to_string(work[g].reference_m[p.end - 1] * 1e3) + " mm]";
-      error = "iteration " + std::to_string(it + 1) + ", slow passes" + where + ": " + error;
+      error = with_bridge_cause("iteration " + std::to_string(it + 1) + ", slow passes" + where + ": " + error);
       return false;
     }
     // The accelerometer, fitted here rather than by the identification: it must

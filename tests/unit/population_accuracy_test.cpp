@@ -125,12 +125,19 @@ class PopulationNoRulerAccelerometer : public ::testing::TestWithParam<std::uint
 TEST_P(PopulationNoRulerAccelerometer, TheFitUsedIsTheFitJudged) {
   auto p = sim::draw_population_motor(GetParam(), shipped_tuning());
   std::printf("[ motor    ] %s\n", p.summary().c_str());
-  for (const double error : {0.0, -0.3}) {
+  for (const double error : {0.0, -0.3, -0.5}) {
     p.sim.imperfections.accel_scale_error = error;
     std::vector<core::ReferenceSegment> segments;
     std::string why;
     ASSERT_TRUE(bench::record_population_calibration(p, segments, why)) << why;
     const auto cal = bench::calibrate_population_motor(p, segments, false);
+    if (error == -0.5) {
+      // Half the sensitivity: the turnarounds cannot be bridged, and the refusal says why.
+      std::printf("[ figures  ] accelerometer sensitivity -50 %%: %s\n", cal.ok ? "calibrated" : cal.error.c_str());
+      if (!cal.ok) EXPECT_NE(cal.error.find("accelerometer's sensitivity"), std::string::npos) << cal.error;
+      if (cal.ok) EXPECT_FALSE(cal.good);
+      continue;
+    }
     ASSERT_TRUE(cal.ok) << cal.error;
     std::printf("[ figures  ] accelerometer sensitivity %+.0f %%: scale %.4f, %s\n", error * 100,
                 cal.cal.model.accel_scale, cal.good ? "good" : cal.problems.front().c_str());
