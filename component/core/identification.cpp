@@ -306,27 +306,35 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     const auto b = static_cast<long>(std::floor(x / curves.bin_m));
     return b >= 0 && b < static_cast<long>(bins) ? b : -1;
   };
-  std::vector<double> bin_num(bins, 0.0), bin_den(bins, 0.0);
-  double num = 0.0, den = 0.0;
-  for (int s = 0; s < nh; ++s) {
-    for (int k = 1; k < table_f.points - 1; ++k) {
-      const std::size_t i = static_cast<std::size_t>(s) * table_f.points + k;
-      const double mean = 0.5 * (table_f.v[i] + table_b.v[i]);
-      if (!std::isfinite(mean) || !std::isfinite(table_f.v[i - 1] + table_f.v[i + 1] + table_b.v[i - 1] + table_b.v[i + 1]))
-        continue;
-      if (!in_range_reading(motor, mean)) continue;
-      const double slope = 0.25 * ((table_f.v[i + 1] - table_f.v[i - 1]) + (table_b.v[i + 1] - table_b.v[i - 1])) /
-                           table_f.step_m;
-      if (std::abs(slope) < 0.3 * smax) continue;
-      num += slope * (table_f.v[i] - table_b.v[i]);
-      den += slope * slope;
-      const long b = bin_of(table_f.start_m + k * table_f.step_m);
-      if (b >= 0) {
-        bin_num[static_cast<std::size_t>(b)] += slope * (table_f.v[i] - table_b.v[i]);
-        bin_den[static_cast<std::size_t>(b)] += slope * slope;
+  // Every node both tables have, in range and on a steep stretch (a third of the
+  // steepest slope or more): f(node's position, the mean slope, forward minus backward).
+  const auto for_each_steep_node = [&](auto&& f) {
+    for (int s = 0; s < nh; ++s) {
+      for (int k = 1; k < table_f.points - 1; ++k) {
+        const std::size_t i = static_cast<std::size_t>(s) * table_f.points + k;
+        const double mean = 0.5 * (table_f.v[i] + table_b.v[i]);
+        if (!std::isfinite(mean) ||
+            !std::isfinite(table_f.v[i - 1] + table_f.v[i + 1] + table_b.v[i - 1] + table_b.v[i + 1]))
+          continue;
+        if (!in_range_reading(motor, mean)) continue;
+        const double slope = 0.25 * ((table_f.v[i + 1] - table_f.v[i - 1]) + (table_b.v[i + 1] - table_b.v[i - 1])) /
+                             table_f.step_m;
+        if (std::abs(slope) < 0.3 * smax) continue;
+        f(table_f.start_m + k * table_f.step_m, slope, table_f.v[i] - table_b.v[i]);
       }
     }
-  }
+  };
+  std::vector<double> bin_num(bins, 0.0), bin_den(bins, 0.0);
+  double num = 0.0, den = 0.0;
+  for_each_steep_node([&](double x, double slope, double diff) {
+    num += slope * diff;
+    den += slope * slope;
+    const long b = bin_of(x);
+    if (b >= 0) {
+      bin_num[static_cast<std::size_t>(b)] += slope * diff;
+      bin_den[static_cast<std::size_t>(b)] += slope * slope;
+    }
+  });
   curves.forward_backward_um.assign(bins, std::numeric_limits<double>::quiet_NaN());
   for (std::size_t b = 0; b < bins; ++b)
     if (bin_den[b] > 0.0) curves.forward_backward_um[b] = -bin_num[b] / bin_den[b] * 1e6;
@@ -344,22 +352,11 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     // The combined table averages both: half the difference's RMS.
     double sum = 0.0;
     long n = 0;
-    for (int s = 0; s < nh; ++s) {
-      for (int k = 1; k < table_f.points - 1; ++k) {
-        const std::size_t i = static_cast<std::size_t>(s) * table_f.points + k;
-        const double mean = 0.5 * (table_f.v[i] + table_b.v[i]);
-        if (!std::isfinite(mean) ||
-            !std::isfinite(table_f.v[i - 1] + table_f.v[i + 1] + table_b.v[i - 1] + table_b.v[i + 1]))
-          continue;
-        if (!in_range_reading(motor, mean)) continue;
-        const double slope = 0.25 * ((table_f.v[i + 1] - table_f.v[i - 1]) + (table_b.v[i + 1] - table_b.v[i - 1])) /
-                             table_f.step_m;
-        if (std::abs(slope) < 0.3 * smax) continue;
-        const double r = table_f.v[i] - table_b.v[i] + slope * shift_m;
-        sum += r * r;
-        ++n;
-      }
-    }
+    for_each_steep_node([&](double, double slope, double diff) {
+      const double r = diff + slope * shift_m;
+      sum += r * r;
+      ++n;
+    });
     rep.table_noise_mv = n > 0 ? 0.5 * std::sqrt(sum / static_cast<double>(n)) * 1e3 : 0.0;
   }
 
