@@ -118,6 +118,21 @@ void FusionFilter::reset(double position_m, double position_var_m2, double accel
   }
 }
 
+bool FusionFilter::doubt_vibration() {
+  if (!vibration_) return false;
+  const double amplitude = std::hypot(x_(kVibIn), x_(kVibQuad));
+  const double sd = std::sqrt(0.5 * (p_(kVibIn, kVibIn) + p_(kVibQuad, kVibQuad)));
+  if (amplitude <= model_.frame_vibration_mps2 + kVibrationDoubtSigma * sd) return false;
+  const double sv = std::max(model_.frame_vibration_mps2, 0.01);
+  for (int s : {static_cast<int>(kVibIn), static_cast<int>(kVibQuad)}) {
+    x_(s) = 0.0;
+    p_.row(s).setZero();
+    p_.col(s).setZero();
+    p_(s, s) = sv * sv;
+  }
+  return true;
+}
+
 void FusionFilter::predict() {
   ++k_;
   // A is block diagonal: kinematics (x, v, a, j), identity (bias, scale) and the

@@ -59,6 +59,12 @@ class FusionFilter {
   /// Hall position fix z measured at t - hall_delay_s, variance r. Returns the
   /// normalised innovation; `applied` is false when it fell outside the gate.
   double update_hall(double z_m, double r_m2, double gate_sigma, bool& applied);
+  /// The frame vibration's resonator starts over (states 0, their start-up
+  /// variance, no correlation with the others) when its amplitude is beyond the
+  /// calibration's by more than kVibrationDoubtSigma of its own uncertainty: what
+  /// it took up came from somewhere else. Returns whether it did.
+  bool doubt_vibration();
+  static constexpr double kVibrationDoubtSigma = 3.0;
   /// Accelerometer reading (frame motion already removed when a frame
   /// accelerometer is used), variance r.
   double update_accel(double z_mps2, double r, double gate_sigma, bool& applied);

@@ -400,6 +400,15 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       // rejected until the filter has to jump to them.
       const double fix_var = fix.variance_m2;
       const double wide_gate = gate * std::sqrt(1.0 + disagreement_var_m2_ / fix.variance_m2);
+      // A drift the adaptation has not learnt yet moves the fixes by a pattern that
+      // repeats with the magnet period, which the frame vibration's resonator takes
+      // up when the two frequencies are near (then rings with it once the drift is
+      // learnt): once it is, the resonator is checked against the calibration's.
+      {
+        const bool unlearnt = fix.drift_m2 > fix.variance_m2;
+        if (drift_unlearnt_ && !unlearnt) kf_.doubt_vibration();
+        drift_unlearnt_ = unlearnt;
+      }
       out_.hall_innovation_sigma = kf_.update_hall(fix.position_m, fix_var, wide_gate, applied);
       if (learn) {
         // The gain every sensor shares, as this fix saw it; then each sensor's own,

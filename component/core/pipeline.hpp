@@ -128,6 +128,7 @@ class AxisPipeline {
   int settled_samples_ = 0;  ///< samples since the filter last (re)acquired
   int settle_samples_ = 1;   ///< ... before the Hall adaptation learns
   int settle_moving_samples_ = 1;  ///< ... or this many, once each sample is at a new place
+  bool drift_unlearnt_ = false;  ///< the last fix carried drift the adaptation had not learnt
   double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
   double disagreement_var_m2_ = 0.0;   ///< its recent average, added to the published sigma
   /// The last fix's quantisation error that the filter cannot average away at

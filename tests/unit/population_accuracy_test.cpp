@@ -353,11 +353,15 @@ TEST_P(PopulationWarmMotion, SensorsDriftedByTemperatureAreLearntTogetherInTenth
                   100 * r.valid_fraction());
       const bool sweeps = sc.name == "multisine" || sc.name == "point-to-point";
       // Started warm at 1 m/s, learning begins once the filter has followed the fixes
-      // for 10 ms: on motor 8 2.0-2.1 um and 0.47-0.53 mm/s while it waited 50 ms.
+      // for 10 ms: on motor 8 2.0-2.1 um and 0.47-0.53 mm/s while it waited 50 ms. Then
+      // 0.97-1.04 um and 0.31-0.32 mm/s while the frame vibration's resonator (38.3 Hz)
+      // kept ringing with the drift it had taken up at 41.8 Hz, the magnet period's
+      // rate: now 0.53-0.59 um and 0.15-0.20 mm/s. The 1 um holds; its 0.2 mm/s
+      // holds with no margin on motor 8 (0.199), so 0.25 is asserted.
       const bool at_speed = sc.name == "1 m/s";
-      EXPECT_LE(r.err.position_m.rms(), sweeps ? 1e-6 : at_speed ? 1.5e-6 : 3.5e-6)
+      EXPECT_LE(r.err.position_m.rms(), sweeps || at_speed ? 1e-6 : 3.5e-6)
           << bench::condition_name(cond) << " " << sc.name;
-      EXPECT_LE(r.err.velocity_mps.rms(), sweeps ? 0.2e-3 : at_speed ? 0.4e-3 : 0.7e-3)
+      EXPECT_LE(r.err.velocity_mps.rms(), sweeps ? 0.2e-3 : at_speed ? 0.25e-3 : 0.7e-3)
           << bench::condition_name(cond) << " " << sc.name;
       EXPECT_EQ(r.flagged, 0u) << bench::condition_name(cond) << " " << sc.name << ": no healthy sensor flagged";
     }
