@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <unordered_map>
 
 #include "hall_array.hpp"
 
@@ -111,9 +112,18 @@ double coil_residual_slope(const MotorConfig& motor, const HallArray& array, con
   track_positions(array, s, cm, start, x);
   const double lo_v = motor.adc.min_v + motor.hall.saturation_margin_v;
   const double hi_v = motor.adc.max_v - motor.hall.saturation_margin_v;
-  Regression fit;  // the readings' mean residual against the acceleration
+  // The readings' mean residual against the acceleration, within each stretch of
+  // a sixteenth of a magnet period: the fast motion's acceleration follows where
+  // the carriage is (a multisine's is largest at its ends), and so would the
+  // table's own errors, which must not be taken for the coil's field. Only how
+  // the residual changes with the acceleration at the same place counts.
+  const double bin_m = motor.magnet_pitch_m / 16.0;
+  struct Bin {
+    double n = 0, a = 0, r = 0, aa = 0, ar = 0;
+  };
+  std::unordered_map<long, Bin> bins;
   for (std::size_t i = 0; i < s.size(); ++i) {
-    if (std::abs(accel[i]) < min_accel) continue;
+    if (std::abs(accel[i]) < min_accel || !std::isfinite(x[i])) continue;
     double sum = 0.0;
     int k = 0;
     for (int j = 0; j < array.table().sensors && j < s[i].hall_count; ++j) {
@@ -123,10 +133,21 @@ double coil_residual_slope(const MotorConfig& motor, const HallArray& array, con
       ++k;
     }
     if (k == 0) continue;
-    fit.add(accel[i], sum / k);
+    const double r = sum / k, a = accel[i];
+    Bin& b = bins[static_cast<long>(std::floor(x[i] / bin_m))];
+    b.n += 1.0;
+    b.a += a;
+    b.r += r;
+    b.aa += a * a;
+    b.ar += a * r;
   }
-  double slope, intercept, rms;
-  return fit.solve(slope, intercept, rms) ? slope : 0.0;
+  double num = 0.0, den = 0.0;
+  for (const auto& [key, b] : bins) {
+    if (b.n < 2.0) continue;
+    num += b.ar - b.a * b.r / b.n;
+    den += b.aa - b.a * b.a / b.n;
+  }
+  return den > 0.0 ? num / den : 0.0;
 }
 
 struct Pass {
