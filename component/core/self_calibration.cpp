@@ -549,6 +549,10 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     // The largest scale correction a turnaround's bridge needed and was refused
     // (more than 50 %): the accelerometer reads far from what the motor file says.
     double refused_bridge_scale = 0.0;
+    // A refused bridge between two passes in the same direction at the same speed is
+    // no turnaround: the Hall positions jumped within one slow pass (by how much, and
+    // where in the recording [s]).
+    double jump_m = 0.0, jump_at_s = 0.0;
     long joins = 0, line_n = 0;
     std::vector<std::vector<Pass>> passes(ng);
     for (std::size_t g = 0; g < ng; ++g) {
@@ -652,6 +656,11 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
           const double beta = det != 0.0 ? (pa_x * dv - dx * va) / det : 0.0;
           if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5)
             refused_bridge_scale = std::max(refused_bridge_scale, std::abs(alpha));
+          if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5 && pa.v * pb.v > 0.0 &&
+              std::abs(pa.v - pb.v) <= 0.1 * std::abs(pa.v) && std::abs(dx) > std::abs(jump_m)) {
+            jump_m = dx;
+            jump_at_s = static_cast<double>(from) * ts[g];
+          }
           if (det != 0.0 && std::isfinite(alpha) && std::isfinite(beta) && std::abs(alpha) < 0.5) {
             for (std::size_t i = from; i < to; ++i) {
               bridged[g][i] = 1;
@@ -846,7 +855,16 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     // A failure after a turnaround's bridge was refused names the accelerometer first.
     const auto with_bridge_cause = [&](const std::string& what) {
       if (refused_bridge_scale < 0.5) return what;
-      char cause[320];
+      char cause[480];
+      if (jump_m != 0.0) {
+        std::snprintf(cause, sizeof cause,
+                      "the Hall positions jumped by %.2f mm (%.2f magnet periods) within a slow pass, %.2f s into the "
+                      "sweep: the data sheet's curve could not follow the sensors there (where every usable sensor "
+                      "reads close to a rail, say): check the Hall amplitude and offset against the converter's range "
+                      "in the motor file, or calibrate with a ruler. Then: ",
+                      jump_m * 1e3, jump_m / motor.magnet_pitch_m, jump_at_s);
+        return std::string(cause) + what;
+      }
       std::snprintf(cause, sizeof cause,
                     "the accelerometer's bridge over a turnaround needed its scale corrected by %.0f %% to land on "
                     "the next slow pass (50 %% is the most allowed): check the accelerometer's sensitivity and axis "
