@@ -455,7 +455,9 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   const double ts0 = kin.empty() ? motor.sample_period_s() : kin[0].ts;
   const double step = ts0 / 10.0;
   const int n_delays = static_cast<int>(std::floor(cfg.max_accel_delay_s / step)) + 1;
-  if (have_dynamic) {
+  if (!cfg.fast_motion_report) {
+    // The caller fits the accelerometer itself: its values stay ideal here.
+  } else if (have_dynamic) {
     // The readings (less the frame's) side by side: the scan passes over every
     // sample once per trial delay, and reading them out of the samples each time
     // was most of a calibration's compute.
@@ -637,7 +639,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   }
 
   // Hall position against the reference in fast motion, with and without compensation.
-  if (have_dynamic) {
+  if (have_dynamic && cfg.fast_motion_report) {
     HallArray array(motor, table);
     double sum_c = 0.0, sum_u = 0.0, sum_var = 0.0;
     long n = 0;
@@ -668,7 +670,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     rep.problems.push_back(fmt("the Hall delay came out as %.1f us, outside 0..1000 us: the reference and the "
                                "Halls are not sampled together",
                                hall_delay * 1e6));
-  if (have_dynamic) {
+  if (have_dynamic && cfg.fast_motion_report) {
     // Without an independent reference the caller fits the accelerometer itself (and
     // judges that fit): this one, against a reference partly bridged with the
     // accelerometer, is not the one used.

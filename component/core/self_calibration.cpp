@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 
 #include "hall_array.hpp"
 
@@ -225,41 +226,67 @@ struct AccelFit {
   long dynamic_samples = 0;
 };
 
+/// The accelerometer's side of one segment through the derivative filter of each
+/// half-width asked for: its readings integrated twice, centred (zz[i+1] - 2 zz[i]
+/// + zz[i-1] = ts^2 z[i]), then differentiated twice. It depends on the recording
+/// only, not on the estimate, so it is made once and every iteration's fit reads it.
+class AccelerometerSide {
+ public:
+  const std::vector<double>& az(const std::vector<RawSample>& s, double ts, int m) {
+    const auto found = az_.find(m);
+    if (found != az_.end()) return found->second;
+    if (zz_.size() != s.size()) {
+      zz_.assign(s.size(), 0.0);
+      double vel = 0.0, last = 0.0;
+      for (std::size_t i = 0; i < s.size(); ++i) {
+        if (i > 0) zz_[i] = zz_[i - 1] + vel * ts;
+        if (s[i].accel_valid) last = accel_reading(s[i]);
+        vel += last * ts;
+      }
+    }
+    std::vector<double> v;
+    std::vector<char> ok;
+    auto& out = az_[m];
+    differentiate(zz_, ts, m, v, out, ok);
+    return out;
+  }
+
+ private:
+  std::vector<double> zz_;
+  std::map<int, std::vector<double>> az_;  // by half-width (a map: references to them stay valid)
+};
+
 /// Both sides of one segment through the derivative filter of half-width m: the
-/// position's acceleration (ar) and the accelerometer's (az), and the samples
-/// usable for the fit (use: no bridged or invalid sample within reach of the
-/// filter and the longest delay).
+/// position's acceleration (ar) and the accelerometer's (az, held by its
+/// AccelerometerSide), and the samples usable for the fit (use: no bridged or
+/// invalid sample within reach of the filter and the longest delay).
 struct FilteredSides {
-  std::vector<double> ar, az;
+  std::vector<double> ar;
+  const std::vector<double>* az = nullptr;
   std::vector<char> use;
 };
 
 void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr, const std::vector<char>& bridged,
-                  double ts, int m, double max_delay_s, FilteredSides& out) {
+                  double ts, int m, double max_delay_s, AccelerometerSide& side, FilteredSides& out) {
   const std::size_t n = s.size();
   out.use.assign(n, 0);
   out.ar.clear();
-  out.az.clear();
+  out.az = nullptr;
   if (n < static_cast<std::size_t>(2 * m + 8)) return;
-  // Readings integrated twice, centred: zz[i+1] - 2 zz[i] + zz[i-1] = ts^2 z[i].
-  std::vector<double> zz(n, 0.0), v;
-  std::vector<char> ok_r, ok_z;
+  std::vector<double> v;
+  std::vector<char> ok_r;
   std::vector<long> bad(n + 1, 0);  // prefix count of bridged or invalid samples
-  double vel = 0.0, last = 0.0;
-  for (std::size_t i = 0; i < n; ++i) {
-    if (i > 0) zz[i] = zz[i - 1] + vel * ts;
-    if (s[i].accel_valid) last = accel_reading(s[i]);
-    vel += last * ts;
+  for (std::size_t i = 0; i < n; ++i)
     bad[i + 1] = bad[i] + ((!s[i].accel_valid || (!bridged.empty() && bridged[i])) ? 1 : 0);
-  }
   differentiate(xr, ts, m, v, out.ar, ok_r);
-  differentiate(zz, ts, m, v, out.az, ok_z);
+  out.az = &side.az(s, ts, m);
   const auto reach = static_cast<std::size_t>(m) + 2 + static_cast<std::size_t>(std::ceil(max_delay_s / ts));
   for (std::size_t i = reach; i + reach < n; ++i)
     if (ok_r[i] && bad[i + reach + 1] == bad[i - reach]) out.use[i] = 1;
 }
 
-/// The accelerometer against the self-made position: reading(t) = scale * a(t - delay) + bias.
+/// The accelerometer against the self-made position (`estimate`'s reference column):
+/// reading(t) = scale * a(t - delay) + bias.
 /// Both sides go through the same filter: the position's acceleration is the
 /// Savitzky-Golay second derivative of the position, the accelerometer's is the same
 /// derivative of its reading integrated twice. So the filter changes neither the
@@ -277,14 +304,15 @@ void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr
 /// the delay by up to 70 us, while the calibration motion's own acceleration is far
 /// slower than the filter's cut-off and still times the delay to about 10 us. The
 /// short filter only counts the fast samples and fits the bias.
-AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<std::vector<double>>& xr,
+AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<ReferenceSegment>& estimate,
                            const std::vector<std::vector<char>>& bridged, const std::vector<double>& ts,
-                           const IdentificationConfig& ic, double scale_half_window_s) {
+                           const IdentificationConfig& ic, double scale_half_window_s,
+                           std::vector<AccelerometerSide>& sides) {
   AccelFit fit;
   const std::size_t ng = segments.size();
   std::vector<FilteredSides> f(ng);
   for (std::size_t g = 0; g < ng; ++g) {
-    filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], ic.derivative_half_window, ic.max_accel_delay_s, f[g]);
+    filter_sides(segments[g].samples, estimate[g].reference_m, bridged[g], ts[g], ic.derivative_half_window, ic.max_accel_delay_s, sides[g], f[g]);
     for (std::size_t i = 0; i < f[g].use.size(); ++i)
       if (f[g].use[i] && std::abs(f[g].ar[i]) >= ic.dynamic_min_accel_mps2) ++fit.dynamic_samples;
   }
@@ -315,7 +343,7 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
       const auto& a = sides[g].ar;
       for (const std::size_t i : fast[g]) {
         if (i + whole + 1 >= a.size()) break;
-        r.add(a[i], shifted(sides[g].az, i, whole, frac));
+        r.add(a[i], shifted(*sides[g].az, i, whole, frac));
       }
     }
     return r;
@@ -335,7 +363,7 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   if (m_long > ic.derivative_half_window) {
     fl.resize(ng);
     for (std::size_t g = 0; g < ng; ++g)
-      filter_sides(segments[g].samples, xr[g], bridged[g], ts[g], m_long, ic.max_accel_delay_s, fl[g]);
+      filter_sides(segments[g].samples, estimate[g].reference_m, bridged[g], ts[g], m_long, ic.max_accel_delay_s, sides[g], fl[g]);
   }
   const auto& fd = fl.empty() ? f : fl;
   const auto fast = fast_samples(fd);
@@ -379,7 +407,7 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
       const double frac = shift - static_cast<double>(whole);
       for (std::size_t i = 0; i + whole + 1 < f[g].ar.size(); ++i) {
         if (!f[g].use[i]) continue;
-        sum += shifted(f[g].az, i, whole, frac) - fit.scale * f[g].ar[i];
+        sum += shifted(*f[g].az, i, whole, frac) - fit.scale * f[g].ar[i];
         ++cnt;
       }
     }
@@ -508,6 +536,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   double accel_scale = 1.0, accel_lag_s = 0.0;  // the accelerometer relative to the Halls, as far as known
   double accel_bias = std::numeric_limits<double>::quiet_NaN();
   std::vector<std::vector<char>> bridged(ng);  // positions made with the accelerometer (not fitted against it)
+  std::vector<AccelerometerSide> accel_sides(ng);  // the accelerometer's filtered readings, for every iteration's fit
   double coil_found = std::numeric_limits<double>::quiet_NaN();
   double sweep_lo = 0.0;       // the lowest position of the sweep (from its start)
   double sweep_pass_lo = 0.0;  // the lowest position of its slow passes
@@ -833,13 +862,27 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
                     refused_bridge_scale * 100.0);
       return std::string(cause) + what;
     };
+    // The accelerometer, fitted here rather than by the identification: it must
+    // leave out the stretches bridged with it, and its regressor is noisy. It needs
+    // only the estimate, so it is fitted first: with it, whether this iteration is
+    // the last (converged, below) is known before the identification runs.
+    AccelFit af;
+    if (it > 0) af = fit_accelerometer(segments, work, bridged, ts, ic, cfg.accel_scale_half_window_s, accel_sides);
+    const bool settles = it >= 2 && change_m <= cfg.converged_m && af.ok &&
+                         std::abs(af.scale - previous_scale) <= cfg.converged_scale;
+    // Only the last iteration's identification is kept whole; the others feed the
+    // next one its table, coil field and Hall delay, and leave out the report's
+    // figures of the fast motion and the accelerometer's delay scan (unless this
+    // calibration's own fit failed, when the identification's is used).
+    IdentificationConfig ic_it = ic;
+    ic_it.fast_motion_report = it + 1 == iterations || settles || !af.ok;
     if (it == 0) {
       const std::vector<ReferenceSegment> sweep_only{work[sweep_segment]};
-      if (!identify_with_reference(motor, sweep_only, ic, cal, idrep, error)) {
+      if (!identify_with_reference(motor, sweep_only, ic_it, cal, idrep, error)) {
         error = with_bridge_cause(error);
         return false;
       }
-    } else if (!identify_with_reference(motor, work, ic, cal, idrep, error)) {
+    } else if (!identify_with_reference(motor, work, ic_it, cal, idrep, error)) {
       std::string where;
       for (std::size_t g = 0; g < ng; ++g)
         for (const auto& p : passes[g])
@@ -848,12 +891,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
       error = with_bridge_cause("iteration " + std::to_string(it + 1) + ", slow passes" + where + ": " + error);
       return false;
     }
-    // The accelerometer, fitted here rather than by the identification: it must
-    // leave out the stretches bridged with it, and its regressor is noisy.
     if (it > 0) {
-      std::vector<std::vector<double>> xr(ng);
-      for (std::size_t g = 0; g < ng; ++g) xr[g] = work[g].reference_m;
-      const AccelFit af = fit_accelerometer(segments, xr, bridged, ts, ic, cfg.accel_scale_half_window_s);
       if (af.ok) {
         cal.model.accel_scale = idrep.accel_scale = af.scale;
         cal.model.accel_bias_mps2 = idrep.accel_bias_mps2 = af.bias;
