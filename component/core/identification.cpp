@@ -445,9 +445,19 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
 
   // Accelerometer: reading = scale * a(t - delay) + bias. Scan the delay; for each,
   // a linear regression against the reference acceleration at the delayed instant.
+  // Whether a frame accelerometer was read, and the sensor node's mean temperature
+  // over the run when it reports one: one pass over the samples for both.
   bool frame_used = false;
+  double temperature_sum = 0.0;
+  long temperature_n = 0;
   for (const auto& seg : segments)
-    for (const auto& s : seg.samples) frame_used = frame_used || s.accel_base_valid;
+    for (const auto& smp : seg.samples) {
+      frame_used = frame_used || smp.accel_base_valid;
+      if (smp.temperature_valid && std::isfinite(smp.temperature_c)) {
+        temperature_sum += smp.temperature_c;
+        ++temperature_n;
+      }
+    }
   rep.frame_accelerometer_used = frame_used;
   double best_rms = std::numeric_limits<double>::infinity();
   double best_delay = 0.0, best_scale = 1.0, best_bias = 0.0;
@@ -535,18 +545,8 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   out.model.accel_scale = rep.accel_scale;
   out.model.frame_vibration_hz = rep.vibration_hz;
   out.model.frame_vibration_mps2 = rep.vibration_mps2;
-  {
-    // The sensor node's mean temperature over the run, when it reports one.
-    double sum = 0.0;
-    long n = 0;
-    for (const auto& seg : segments)
-      for (const auto& smp : seg.samples)
-        if (smp.temperature_valid && std::isfinite(smp.temperature_c)) {
-          sum += smp.temperature_c;
-          ++n;
-        }
-    out.model.temperature_c = n > 0 ? sum / static_cast<double>(n) : std::numeric_limits<double>::quiet_NaN();
-  }
+  out.model.temperature_c = temperature_n > 0 ? temperature_sum / static_cast<double>(temperature_n)
+                                              : std::numeric_limits<double>::quiet_NaN();
   out.info.motor = motor.name;
   out.info.hall_count = nh;
   out.info.magnet_pitch_m = motor.magnet_pitch_m;

@@ -194,12 +194,26 @@ double line_at(const Pass& p, std::size_t i, double ts) { return p.c + p.v * (st
 
 double accel_reading(const RawSample& s) { return s.accel_mps2 - (s.accel_base_valid ? s.accel_base_mps2 : 0.0); }
 
+/// A segment's accelerometer readings (less the frame's) and whether each is valid,
+/// side by side: every iteration reads them several times, and reading them out of
+/// the samples each time cost more than the arithmetic.
+struct AccelerometerReadings {
+  std::vector<double> z;
+  std::vector<char> valid;
+  explicit AccelerometerReadings(const std::vector<RawSample>& s) : z(s.size()), valid(s.size()) {
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      z[i] = accel_reading(s[i]);
+      valid[i] = s[i].accel_valid ? 1 : 0;
+    }
+  }
+};
+
 /// The carriage's acceleration at sample i of a segment as the accelerometer
 /// tells it: its reading `lag_s` later (interpolated between samples, held at the
 /// segment's ends, `bias` where a reading is invalid), less the bias, over the scale.
 class AccelerometerSeries {
  public:
-  AccelerometerSeries(const std::vector<RawSample>& s, double ts, double lag_s, double bias, double scale)
+  AccelerometerSeries(const AccelerometerReadings& s, double ts, double lag_s, double bias, double scale)
       : s_(s), bias_(bias), scale_(scale) {
     const double lag = lag_s / ts;
     whole_ = static_cast<long>(std::floor(lag));
@@ -212,10 +226,10 @@ class AccelerometerSeries {
 
  private:
   double reading(long j) const {
-    const auto& smp = s_[static_cast<std::size_t>(std::clamp(j, 0L, static_cast<long>(s_.size()) - 1))];
-    return smp.accel_valid ? accel_reading(smp) : bias_;
+    const auto k = static_cast<std::size_t>(std::clamp(j, 0L, static_cast<long>(s_.z.size()) - 1));
+    return s_.valid[k] ? s_.z[k] : bias_;
   }
-  const std::vector<RawSample>& s_;
+  const AccelerometerReadings& s_;
   double bias_, scale_, frac_ = 0.0;
   long whole_ = 0;
 };
@@ -266,8 +280,9 @@ struct FilteredSides {
   std::vector<char> use;
 };
 
-void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr, const std::vector<char>& bridged,
-                  double ts, int m, double max_delay_s, AccelerometerSide& side, FilteredSides& out) {
+void filter_sides(const std::vector<RawSample>& s, const AccelerometerReadings& z, const std::vector<double>& xr,
+                  const std::vector<char>& bridged, double ts, int m, double max_delay_s, AccelerometerSide& side,
+                  FilteredSides& out) {
   const std::size_t n = s.size();
   out.use.assign(n, 0);
   out.ar.clear();
@@ -277,7 +292,7 @@ void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr
   std::vector<char> ok_r;
   std::vector<long> bad(n + 1, 0);  // prefix count of bridged or invalid samples
   for (std::size_t i = 0; i < n; ++i)
-    bad[i + 1] = bad[i] + ((!s[i].accel_valid || (!bridged.empty() && bridged[i])) ? 1 : 0);
+    bad[i + 1] = bad[i] + ((!z.valid[i] || (!bridged.empty() && bridged[i])) ? 1 : 0);
   differentiate(xr, ts, m, v, out.ar, ok_r);
   out.az = &side.az(s, ts, m);
   const auto reach = static_cast<std::size_t>(m) + 2 + static_cast<std::size_t>(std::ceil(max_delay_s / ts));
@@ -307,12 +322,13 @@ void filter_sides(const std::vector<RawSample>& s, const std::vector<double>& xr
 AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<ReferenceSegment>& estimate,
                            const std::vector<std::vector<char>>& bridged, const std::vector<double>& ts,
                            const IdentificationConfig& ic, double scale_half_window_s,
-                           std::vector<AccelerometerSide>& sides) {
+                           const std::vector<AccelerometerReadings>& readings, std::vector<AccelerometerSide>& sides) {
   AccelFit fit;
   const std::size_t ng = segments.size();
   std::vector<FilteredSides> f(ng);
   for (std::size_t g = 0; g < ng; ++g) {
-    filter_sides(segments[g].samples, estimate[g].reference_m, bridged[g], ts[g], ic.derivative_half_window, ic.max_accel_delay_s, sides[g], f[g]);
+    filter_sides(segments[g].samples, readings[g], estimate[g].reference_m, bridged[g], ts[g],
+                 ic.derivative_half_window, ic.max_accel_delay_s, sides[g], f[g]);
     for (std::size_t i = 0; i < f[g].use.size(); ++i)
       if (f[g].use[i] && std::abs(f[g].ar[i]) >= ic.dynamic_min_accel_mps2) ++fit.dynamic_samples;
   }
@@ -363,7 +379,8 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   if (m_long > ic.derivative_half_window) {
     fl.resize(ng);
     for (std::size_t g = 0; g < ng; ++g)
-      filter_sides(segments[g].samples, estimate[g].reference_m, bridged[g], ts[g], m_long, ic.max_accel_delay_s, sides[g], fl[g]);
+      filter_sides(segments[g].samples, readings[g], estimate[g].reference_m, bridged[g], ts[g], m_long,
+                   ic.max_accel_delay_s, sides[g], fl[g]);
   }
   const auto& fd = fl.empty() ? f : fl;
   const auto fast = fast_samples(fd);
@@ -537,6 +554,9 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   double accel_bias = std::numeric_limits<double>::quiet_NaN();
   std::vector<std::vector<char>> bridged(ng);  // positions made with the accelerometer (not fitted against it)
   std::vector<AccelerometerSide> accel_sides(ng);  // the accelerometer's filtered readings, for every iteration's fit
+  std::vector<AccelerometerReadings> readings;      // the accelerometer's readings, for the bridges and the coil field
+  readings.reserve(ng);
+  for (std::size_t g = 0; g < ng; ++g) readings.emplace_back(work[g].samples);
   double coil_found = std::numeric_limits<double>::quiet_NaN();
   double sweep_lo = 0.0;       // the lowest position of the sweep (from its start)
   double sweep_pass_lo = 0.0;  // the lowest position of its slow passes
@@ -618,18 +638,20 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         }
         return sum / static_cast<double>(n);
       };
-      // Bias: the mean reading within the passes (the speed is steady there).
+      // Bias: the fitted one once there is one; before, the mean reading within the
+      // passes (the speed is steady there).
       double bias = 0.0;
-      {
+      if (std::isfinite(accel_bias)) {
+        bias = accel_bias;
+      } else {
         double sum = 0.0;
         long n = 0;
         for (const auto& p : ps)
           for (std::size_t i = p.begin; i < p.end; ++i)
-            if (s[i].accel_valid) sum += accel_reading(s[i]), ++n;
+            if (readings[g].valid[i]) sum += readings[g].z[i], ++n;
         if (n > 0) bias = sum / static_cast<double>(n);
       }
-      if (std::isfinite(accel_bias)) bias = accel_bias;
-      const AccelerometerSeries acc(s, ts[g], accel_lag_s, bias, accel_scale);
+      const AccelerometerSeries acc(readings[g], ts[g], accel_lag_s, bias, accel_scale);
       const auto max_gap = static_cast<std::size_t>(1.0 / ts[g]);
       for (std::size_t q = 0; q <= ps.size(); ++q) {
         // The gap between pass q-1 and pass q: short ones (turnarounds) are bridged
@@ -855,7 +877,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     // misjudged, so regressing on them pulls the coil field low and the errors grow.
     if (std::isfinite(accel_bias)) {
       for (std::size_t g = 0; g < ng; ++g) {
-        const AccelerometerSeries acc(work[g].samples, ts[g], accel_lag_s, accel_bias, accel_scale);
+        const AccelerometerSeries acc(readings[g], ts[g], accel_lag_s, accel_bias, accel_scale);
         for (std::size_t i = 0; i < accel[g].size(); ++i) accel[g][i] = acc(i);
       }
     }
@@ -892,9 +914,11 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     // only the estimate, so it is fitted first: with it, whether this iteration is
     // the last is known before the identification runs.
     AccelFit af;
-    if (it > 0) af = fit_accelerometer(segments, work, bridged, ts, ic, cfg.accel_scale_half_window_s, accel_sides);
+    if (it > 0)
+      af = fit_accelerometer(segments, work, bridged, ts, ic, cfg.accel_scale_half_window_s, readings, accel_sides);
     bool will_converge = false, will_stall = false;
-    const bool last = it + 1 == iterations || (af.ok && stops(std::abs(af.scale - previous_scale), will_converge, will_stall));
+    const bool last =
+        it + 1 == iterations || (af.ok && stops(std::abs(af.scale - previous_scale), will_converge, will_stall));
     // Only the last iteration's identification is kept whole; the others feed the
     // next one its table, coil field and Hall delay, and leave out the report's
     // figures of the fast motion and the accelerometer's delay scan (unless this
@@ -902,8 +926,12 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     IdentificationConfig ic_it = ic;
     ic_it.fast_motion_report = last || !af.ok;
     if (it == 0) {
-      const std::vector<ReferenceSegment> sweep_only{work[sweep_segment]};
-      if (!identify_with_reference(motor, sweep_only, ic_it, cal, idrep, error)) {
+      // The sweep's segment lent to the identification (moved, not copied) and back.
+      std::vector<ReferenceSegment> sweep_only(1);
+      sweep_only[0] = std::move(work[sweep_segment]);
+      const bool identified = identify_with_reference(motor, sweep_only, ic_it, cal, idrep, error);
+      work[sweep_segment] = std::move(sweep_only[0]);
+      if (!identified) {
         error = with_bridge_cause(error);
         return false;
       }
