@@ -445,9 +445,19 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
 
   // Accelerometer: reading = scale * a(t - delay) + bias. Scan the delay; for each,
   // a linear regression against the reference acceleration at the delayed instant.
+  // Whether a frame accelerometer was read, and the sensor node's mean temperature
+  // over the run when it reports one: one pass over the samples for both.
   bool frame_used = false;
+  double temperature_sum = 0.0;
+  long temperature_n = 0;
   for (const auto& seg : segments)
-    for (const auto& s : seg.samples) frame_used = frame_used || s.accel_base_valid;
+    for (const auto& smp : seg.samples) {
+      frame_used = frame_used || smp.accel_base_valid;
+      if (smp.temperature_valid && std::isfinite(smp.temperature_c)) {
+        temperature_sum += smp.temperature_c;
+        ++temperature_n;
+      }
+    }
   rep.frame_accelerometer_used = frame_used;
   double best_rms = std::numeric_limits<double>::infinity();
   double best_delay = 0.0, best_scale = 1.0, best_bias = 0.0;
@@ -455,7 +465,9 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   const double ts0 = kin.empty() ? motor.sample_period_s() : kin[0].ts;
   const double step = ts0 / 10.0;
   const int n_delays = static_cast<int>(std::floor(cfg.max_accel_delay_s / step)) + 1;
-  if (have_dynamic) {
+  if (!cfg.fast_motion_report) {
+    // The caller fits the accelerometer itself: its values stay ideal here.
+  } else if (have_dynamic) {
     // The readings (less the frame's) side by side: the scan passes over every
     // sample once per trial delay, and reading them out of the samples each time
     // was most of a calibration's compute.
@@ -533,18 +545,8 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   out.model.accel_scale = rep.accel_scale;
   out.model.frame_vibration_hz = rep.vibration_hz;
   out.model.frame_vibration_mps2 = rep.vibration_mps2;
-  {
-    // The sensor node's mean temperature over the run, when it reports one.
-    double sum = 0.0;
-    long n = 0;
-    for (const auto& seg : segments)
-      for (const auto& smp : seg.samples)
-        if (smp.temperature_valid && std::isfinite(smp.temperature_c)) {
-          sum += smp.temperature_c;
-          ++n;
-        }
-    out.model.temperature_c = n > 0 ? sum / static_cast<double>(n) : std::numeric_limits<double>::quiet_NaN();
-  }
+  out.model.temperature_c = temperature_n > 0 ? temperature_sum / static_cast<double>(temperature_n)
+                                              : std::numeric_limits<double>::quiet_NaN();
   out.info.motor = motor.name;
   out.info.hall_count = nh;
   out.info.magnet_pitch_m = motor.magnet_pitch_m;
@@ -637,7 +639,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   }
 
   // Hall position against the reference in fast motion, with and without compensation.
-  if (have_dynamic) {
+  if (have_dynamic && cfg.fast_motion_report) {
     HallArray array(motor, table);
     double sum_c = 0.0, sum_u = 0.0, sum_var = 0.0;
     long n = 0;
@@ -668,7 +670,7 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     rep.problems.push_back(fmt("the Hall delay came out as %.1f us, outside 0..1000 us: the reference and the "
                                "Halls are not sampled together",
                                hall_delay * 1e6));
-  if (have_dynamic) {
+  if (have_dynamic && cfg.fast_motion_report) {
     // Without an independent reference the caller fits the accelerometer itself (and
     // judges that fit): this one, against a reference partly bridged with the
     // accelerometer, is not the one used.

@@ -60,6 +60,14 @@ struct IdentificationConfig {
   /// one the self-made reference there is made of these Hall positions, and their
   /// residual against it is reported as a consistency figure, not judged.
   bool fast_reference_independent = true;
+  /// false: leave out what neither the table nor the coil field needs: the
+  /// accelerometer's delay scan (its scale, bias, delay and fit residual stay at
+  /// their ideal values, and the verdict does not judge them), the search for a
+  /// frame vibration and the Hall position's residual in fast motion. For a caller
+  /// that runs the identification again and again (calibration without a ruler:
+  /// once per iteration), fits the accelerometer itself and keeps only the last
+  /// result, which it asks for in full; these were most of each run's compute.
+  bool fast_motion_report = true;
   /// Search for a frame vibration in the accelerometer: frequency range [Hz], the
   /// stretch of recording used [s], and how far above the spectrum's median (and
   /// above an absolute level) a line must stand to count.

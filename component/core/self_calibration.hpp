@@ -25,7 +25,8 @@
 //  common mode (coil field) left out, scored over the whole segment at every
 //  whole-period shift. Turnarounds between two passes are bridged by the
 //  accelerometer, corrected in scale and bias to land on the next line. The loop
-//  stops once it has converged, and keeps that (last) iteration; one that does not
+//  stops once it has converged, or once it only goes back and forth by less than
+//  the verdict tolerates, and keeps that (last) iteration; one that does not
 //  settle is reported as a problem.
 //
 // What it cannot know (and says so):
@@ -78,6 +79,14 @@ struct SelfCalibrationConfig {
   /// forth between neighbouring solutions by a tenth of what a calibration without
   /// a ruler is good to (about 1 um beyond the track's own scale).
   double unsettled_limit_m = 0.5e-6;
+  /// They also stop once they go back and forth below that limit: the change (at
+  /// most unsettled_limit_m) was more than stalled_ratio of the one before, this
+  /// many iterations in a row, and the accelerometer's scale moved by at most
+  /// converged_scale. Converging iterations shrink the change severalfold each time;
+  /// ones that have stopped shrinking it only trade one neighbouring solution for
+  /// another. 0: run on to `iterations`.
+  int stalled_iterations = 2;
+  double stalled_ratio = 0.9;
   /// The one absolute delay the recording cannot tell: give the Halls' (from the
   /// front end's filter design) or the accelerometer's (its data sheet). When both
   /// are NaN the Hall delay is taken as 0 and the report says so.
@@ -138,6 +147,9 @@ struct SelfCalibrationReport {
   double hall_delay_reproduced_s = 0.0; ///< what forward/backward gave against the self-made position (a check)
   std::vector<std::string> iterations;  ///< one line per iteration: what it found
   bool converged = false;               ///< the iterations settled (see SelfCalibrationConfig)
+  /// They stopped going back and forth below unsettled_limit_m without settling
+  /// (SelfCalibrationConfig::stalled_iterations); converged is false then.
+  bool stalled = false;
   double last_change_m = 0.0;           ///< how far the last iteration moved the estimate, RMS [m]
 };
 
