@@ -87,7 +87,11 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
            cal.model.table_trusted_from_m * 1e3, cal.model.table_trusted_to_m * 1e3,
            cal.model.table_outside_std_m * 1e6);
     line("  iterations: %zu, the last moved the estimate %.3f um RMS (%s)\n", s.iterations.size(),
-         s.last_change_m * 1e6, s.converged ? "settled" : "going back and forth, not settled");
+         s.last_change_m * 1e6,
+         s.converged ? "settled"
+         : s.stalled ? "settled into going back and forth below the tolerated limit: further iterations would not "
+                       "change the result"
+                     : "going back and forth, not settled");
   }
   if (!plots.empty()) {
     line("Plots (SVG, beside this report)\n");
