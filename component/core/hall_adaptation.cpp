@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cmath>
 
-#include <Eigen/Core>
-
 namespace ve::core {
 
 HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
@@ -147,29 +145,49 @@ double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,
                                          double& beyond_prior) const {
   beyond_prior = 0.0;
   if (!enabled_) return 0.0;
-  double total = 0.0, prior = 0.0, own_beyond = 0.0, looks = 0.0;
-  for (int i = 0; i < sensors_; ++i) {
-    if (!(mask >> i & 1u)) continue;
-    const auto k = static_cast<std::size_t>(i);
-    const double ui = table_v[k] - mid_v_;
-    prior += c[k] * c[k] * (ui * ui * p0_gg_ + p0_dd_);
-    own_beyond += c[k] * c[k] * drift_variance(i, table_v[k]);
-    if (!joint_) {
+  // The sensors in `mask`, in order: every sum below runs over them in that order,
+  // as sensor by sensor over the mask (the same terms added in the same order; the
+  // list spares the inner loop a test per pair).
+  int used[kMaxHalls];
+  int m = 0;
+  for (int i = 0; i < sensors_; ++i)
+    if (mask >> i & 1u) used[m++] = i;
+  double total = 0.0;
+  if (!joint_) {
+    // Sensor by sensor (no correlations): what each holds beyond its prior.
+    double own_beyond = 0.0;
+    for (int t = 0; t < m; ++t) {
+      const int i = used[t];
+      const auto k = static_cast<std::size_t>(i);
+      own_beyond += c[k] * c[k] * drift_variance(i, table_v[k]);
       total += c[k] * c[k] * reading_variance(i, table_v[k]);
-      continue;
     }
-    looks += c[k] * c[k] * (ui * ui * look_gg_[k] + look_dd_[k]);
-    for (int j = 0; j < sensors_; ++j) {
-      if (!(mask >> j & 1u)) continue;
-      const auto l = static_cast<std::size_t>(j);
-      const double uj = table_v[l] - mid_v_;
-      const int a = 2 * i, b = 2 * j;
-      total += c[k] * c[l] * (ui * uj * p_[a][b] + ui * p_[a][b + 1] + uj * p_[a + 1][b] + p_[a + 1][b + 1]);
+    beyond_prior = own_beyond;
+    return std::max(0.0, total);
+  }
+  // Jointly: the sensors' covariance with its correlations, and what the combination
+  // holds beyond the prior's share.
+  double cu[kMaxHalls], uu[kMaxHalls];
+  for (int t = 0; t < m; ++t) {
+    const auto k = static_cast<std::size_t>(used[t]);
+    cu[t] = c[k];
+    uu[t] = table_v[k] - mid_v_;
+  }
+  double prior = 0.0, looks = 0.0;
+  for (int t = 0; t < m; ++t) {
+    const auto k = static_cast<std::size_t>(used[t]);
+    const double ci = cu[t], ui = uu[t];
+    prior += ci * ci * (ui * ui * p0_gg_ + p0_dd_);
+    looks += ci * ci * (ui * ui * look_gg_[k] + look_dd_[k]);
+    const double* pg = p_[2 * used[t]];      // gamma_i's row
+    const double* pd = p_[2 * used[t] + 1];  // delta_i's row
+    for (int q = 0; q < m; ++q) {
+      const int b = 2 * used[q];
+      const double uj = uu[q];
+      total += ci * cu[q] * (ui * uj * pg[b] + ui * pg[b + 1] + uj * pd[b] + pd[b + 1]);
     }
   }
-  // Sensor by sensor (no correlations) what each holds beyond its prior; jointly,
-  // what the combination holds beyond the prior's share.
-  beyond_prior = joint_ ? std::max(0.0, std::max(total, looks) - prior) : own_beyond;
+  beyond_prior = std::max(0.0, std::max(total, looks) - prior);
   return std::max(0.0, total);
 }
 
@@ -332,42 +350,47 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
   // state (deviations from the current parameters, in x). The sample counts as
   // `share` of a new one: its noise is taken 1 / share as large.
   const int n = 2 * sensors_;
-  const int e = kShift;
-  double x[kJoint] = {};
-  for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
-  p_[e][e] = max_shift_m_ * max_shift_m_;
-  int idx[kJoint];
-  int m = 0;
-  for (int j = 0; j < n; ++j) idx[m++] = j;
-  idx[m++] = e;
-  double ph[kJoint];
-  // The updates below keep only the upper triangle (row <= column: the states in
-  // idx order are ascending) and mirror it once at the end: each entry as
-  // before, without a scattered store for every one of them.
-  auto upper = [&](int row, int col) { return row <= col ? p_[row][col] : p_[col][row]; };
+  // The parameters' deviations, and the shift's (e).
+  double x[kParams] = {}, xe = 0.0;
+  // The shift's row and column of the covariance (pe[j]: with parameter j; pee: its
+  // own variance), kept here: it is re-opened for every sample and left out after.
+  // Uncorrelated with the parameters at first.
+  double pe[kParams] = {}, pee = max_shift_m_ * max_shift_m_;
+  // P h for the sensor being taken in: ph[j] for parameter j, phe for the shift.
+  double ph[kParams], phe;
+  // The updates below keep only the upper triangle of p_ (row <= column) and mirror
+  // it once at the end: each entry as before, without a scattered store for every one
+  // of them. The lower triangle is stale until then and is never read.
   auto scalar_update = [&](int i, double rv, bool whole) {
     const auto k = static_cast<std::size_t>(i);
     const int a = 2 * i, b = 2 * i + 1;
-    for (int t = 0; t < m; ++t) {
-      const int j = idx[t];
-      ph[j] = upper(j, a) * u[k] + upper(j, b) + upper(j, e) * sl[k];
-    }
-    const double s = u[k] * ph[a] + ph[b] + sl[k] * ph[e] + rv / share;
+    const double uk = u[k], sk = sl[k];
+    // ph = P h with h = (u at a, 1 at b, slope at the shift): column a and b of the
+    // symmetric P, read from the upper triangle (above row a down the columns, past
+    // row b along the rows), the same sum in the same order for every state.
+    for (int j = 0; j < a; ++j) ph[j] = p_[j][a] * uk + p_[j][b] + pe[j] * sk;
+    ph[a] = p_[a][a] * uk + p_[a][b] + pe[a] * sk;
+    ph[b] = p_[a][b] * uk + p_[b][b] + pe[b] * sk;
+    for (int j = b + 1; j < n; ++j) ph[j] = p_[a][j] * uk + p_[b][j] + pe[j] * sk;
+    phe = pe[a] * uk + pe[b] + pee * sk;
+    const double s = uk * ph[a] + ph[b] + sk * phe + rv / share;
     if (!(s > 0.0)) return;
-    const double nu = r[k] - (u[k] * x[a] + x[b] + sl[k] * x[e]);
+    const double nu = r[k] - (uk * x[a] + x[b] + sk * xe);
     if (whole) {
-      // The gain, each state's ph / s (idx is 0 .. n - 1, then e, above all of them).
-      double kg[kJoint];
-      Eigen::Map<Eigen::ArrayXd>(kg, n) = Eigen::Map<const Eigen::ArrayXd>(ph, n) / s;
-      kg[e] = ph[e] / s;
-      for (int t = 0; t < m; ++t) x[idx[t]] += kg[idx[t]] * nu;
+      // The gain, each state's ph / s.
+      double kg[kParams];
+      for (int j = 0; j < n; ++j) kg[j] = ph[j] / s;
+      const double kge = phe / s;
+      for (int j = 0; j < n; ++j) x[j] += kg[j] * nu;
+      xe += kge * nu;
+      // P -= kg ph^T, the upper triangle row by row (each row's tail is contiguous).
       for (int j = 0; j < n; ++j) {
         const double kj = kg[j];
         double* row = p_[j];
-        Eigen::Map<Eigen::ArrayXd>(row + j, n - j) -= kj * Eigen::Map<const Eigen::ArrayXd>(ph + j, n - j);
-        row[e] -= kj * ph[e];
+        for (int l = j; l < n; ++l) row[l] -= kj * ph[l];
+        pe[j] -= kj * phe;
       }
-      p_[e][e] -= kg[e] * ph[e];
+      pee -= kge * phe;
     } else {
       // A sensor judged faulty learns from the others but tells them nothing: only
       // its own parameters move, against the position error the others found.
@@ -388,11 +411,9 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
       scalar_update(i, noise_var_v2_ + model_var_v2_, healthy);
     }
   }
-  // The mirror (the shift's row and column are cleared next).
+  // The mirror (the shift's row and column are dropped with this function's locals).
   for (int j = 1; j < n; ++j)
     for (int l = 0; l < j; ++l) p_[j][l] = p_[l][j];
-  for (int j = 0; j < n; ++j) p_[j][e] = p_[e][j] = 0.0;
-  p_[e][e] = 0.0;
   // The looks: the table's error once per kModelShareOfPitch of travel, the noise of
   // every sample in between.
   const double model_share = std::min(1.0, share * kNewPlaceShareOfPitch / kModelShareOfPitch);

@@ -203,12 +203,11 @@ class HallAdaptation {
   // Every sensor's gain and offset are learnt together: what one sample cannot tell
   // apart (a shift of the position against the sensors' common pattern of drift) is
   // held as a correlation, not forgotten. The joint covariance of (gamma_i, delta_i)
-  // for all sensors, gamma_i at 2i and delta_i at 2i + 1; the last row and column
-  // are the position error of the sample being learnt from (a nuisance, re-opened
-  // for every sample).
-  static constexpr int kJoint = 2 * kMaxHalls + 1;
-  static constexpr int kShift = 2 * kMaxHalls;
-  double p_[kJoint][kJoint] = {};
+  // for all sensors, gamma_i at 2i and delta_i at 2i + 1. (joint_update adds the
+  // position error of the sample being learnt from as one more state, a nuisance
+  // re-opened for every sample; its row and column live only there.)
+  static constexpr int kParams = 2 * kMaxHalls;
+  double p_[kParams][kParams] = {};
   double& pgg(int i) { return p_[2 * i][2 * i]; }
   double& pgd(int i) { return p_[2 * i][2 * i + 1]; }
   double& pdd(int i) { return p_[2 * i + 1][2 * i + 1]; }

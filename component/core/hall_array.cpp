@@ -43,7 +43,7 @@ HallArray::HallArray(const MotorConfig& motor, HallTable table)
   }
 }
 
-void HallArray::evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
+void HallArray::evaluate_all(double x_m, Cell& cell, std::array<double, kMaxHalls>& value_v,
                              std::array<double, kMaxHalls>& slope_v_per_m) const {
   const int points = table_.points;
   double u = (x_m - table_.start_m) / table_.step_m;
@@ -51,18 +51,28 @@ void HallArray::evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
   int k = static_cast<int>(u);
   if (k > points - 2) k = points - 2;
   const double t = u - k;
-  const double* r1 = knots_.data() + static_cast<std::size_t>(k) * kMaxHalls;
-  const double* r2 = r1 + kMaxHalls;
   if (!knots_.empty() && k > 0 && k + 2 < points) {
     // As HallTable::evaluate, every sensor at once (the same operations in the same
     // order, element by element): Catmull-Rom through p0..p3 around [k, k+1].
     using Knots = Eigen::Array<double, kMaxHalls, 1>;
-    const Eigen::Map<const Knots> p0(r1 - kMaxHalls), p1(r1), p2(r2), p3(r2 + kMaxHalls);
-    const Knots a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
-    const Knots b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
-    const Knots c = -0.5 * p0 + 0.5 * p2;
+    using Coefficients = Eigen::Map<Knots>;
+    if (cell.k != k) {
+      const double* r1 = knots_.data() + static_cast<std::size_t>(k) * kMaxHalls;
+      const double* r2 = r1 + kMaxHalls;
+      const Eigen::Map<const Knots> p0(r1 - kMaxHalls), p1(r1), p2(r2), p3(r2 + kMaxHalls);
+      Coefficients a(cell.a.data()), b(cell.b.data());
+      a = -0.5 * p0 + 1.5 * p1 - 1.5 * p2 + 0.5 * p3;
+      b = p0 - 2.5 * p1 + 2.0 * p2 - 0.5 * p3;
+      Coefficients(cell.c.data()) = -0.5 * p0 + 0.5 * p2;
+      Coefficients(cell.p1.data()) = p1;
+      Coefficients(cell.a3.data()) = 3.0 * a;
+      Coefficients(cell.b2.data()) = 2.0 * b;
+      cell.k = k;
+    }
+    const Eigen::Map<const Knots> a(cell.a.data()), b(cell.b.data()), c(cell.c.data()), p1(cell.p1.data()),
+        a3(cell.a3.data()), b2(cell.b2.data());
     Eigen::Map<Knots>(value_v.data()) = ((a * t + b) * t + c) * t + p1;
-    Eigen::Map<Knots>(slope_v_per_m.data()) = ((3.0 * a * t + 2.0 * b) * t + c) / table_.step_m;
+    Eigen::Map<Knots>(slope_v_per_m.data()) = ((a3 * t + b2) * t + c) / table_.step_m;
     return;
   }
   for (int s = 0; s < sensors_; ++s)  // an end of the table: its own mirroring
@@ -78,17 +88,22 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // Weight of sensor i with its reading's table value t: the noise, plus what its
   // adapted gain and offset are still unsure of.
   const double noise_var = 1.0 / weight_;
-  using Column = Eigen::Array<double, kMaxHalls, 1>;
-  // Every sensor's weight where the table reads `t` (all at once: the divisions go
-  // in pairs).
+  // The weights of the sensors taking part (`on`, listed below) where the table reads
+  // `t`; no other sensor's weight is read. One at a time: gathered into a vector for
+  // paired divisions, the values just stored one by one would be loaded back in
+  // pairs, which the processor cannot forward from its store buffer (a stall longer
+  // than the divisions saved, in every iteration).
+  int on[kMaxHalls];
+  int n_on = 0;
   auto weights = [&](const std::array<double, kMaxHalls>& t, std::array<double, kMaxHalls>& w) {
     if (!adaptation) {
       w.fill(weight_);
       return;
     }
-    Column rv;
-    for (int i = 0; i < kMaxHalls; ++i) rv[i] = i < sensors_ ? adaptation->reading_variance(i, t[static_cast<std::size_t>(i)]) : 0.0;
-    Eigen::Map<Column>(w.data()) = 1.0 / (noise_var + rv);
+    for (int q = 0; q < n_on; ++q) {
+      const auto k = static_cast<std::size_t>(on[q]);
+      w[k] = 1.0 / (noise_var + adaptation->reading_variance(on[q], t[k]));
+    }
   };
   HallFix fix;
   for (int i = 0; i < sensors_; ++i)
@@ -105,21 +120,32 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   const double max_step = pitch_m_ / 8.0;
   // The sensors that take part (valid, in use_mask, out of saturation), and those
   // whose residual is checked at the solution (saturated ones too).
+  // Also listed in order: the sums below run over the lists, the same terms in the
+  // same order as over the masks, without a test per sensor in every iteration.
   std::uint32_t in_use = 0, checked = 0;
+  int checked_list[kMaxHalls];
+  int n_checked = 0;
   for (int i = 0; i < sensors_; ++i) {
-    if (usable(sample, i, use_mask)) in_use |= 1u << i;
-    if ((sample.hall_valid_mask & use_mask) >> i & 1u) checked |= 1u << i;
+    if (usable(sample, i, use_mask)) {
+      in_use |= 1u << i;
+      on[n_on++] = i;
+    }
+    if ((sample.hall_valid_mask & use_mask) >> i & 1u) {
+      checked |= 1u << i;
+      checked_list[n_checked++] = i;
+    }
   }
   std::array<double, kMaxHalls> tab{}, slp{}, wgt{};
+  Cell cell;  // the interval the iterations are on
   double x = guess_m, e = 0.0;
   for (int iter = 0, iters = with_gain ? 8 : 6; iter < iters; ++iter) {
     double hxx = 0.0, hxe = 0.0, hee = info_c, gx = 0.0, ge = -e * info_c;
     if (in_use) {
-      evaluate_all(x, tab, slp);
+      evaluate_all(x, cell, tab, slp);
       weights(tab, wgt);
     }
-    for (int i = 0; i < sensors_; ++i) {
-      if (!(in_use >> i & 1u)) continue;
+    for (int q = 0; q < n_on; ++q) {
+      const int i = on[q];
       const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
       const double w = wgt[static_cast<std::size_t>(i)];
       const double u = t - mid;
@@ -164,11 +190,11 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   std::array<double, kMaxHalls> wjx{}, wu{}, tv{};
   std::uint32_t used_mask = 0;
   if (checked) {
-    evaluate_all(x, tab, slp);
+    evaluate_all(x, cell, tab, slp);
     weights(tab, wgt);
   }
-  for (int i = 0; i < sensors_; ++i) {
-    if (!(checked >> i & 1u)) continue;
+  for (int q = 0; q < n_checked; ++q) {
+    const int i = checked_list[q];
     const double t = tab[static_cast<std::size_t>(i)], slope = slp[static_cast<std::size_t>(i)];
     const double u = t - mid;
     const double r = sample.hall_v[i] - common_mode_v - t - e * u;
@@ -201,15 +227,23 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   double var_x = 1.0 / hxx;
   double gain_sq = qxx / (hxx * hxx);  // sum of the squared sensitivities c_i below
   double gain_prior_share = 0.0;       // what the common gain's prior adds to the position's variance
-  std::array<double, kMaxHalls> c{};  // the position's sensitivity to each reading
-  const Eigen::Map<const Column> wjx_all(wjx.data()), wu_all(wu.data());
-  if (!with_gain) Eigen::Map<Column>(c.data()) = wjx_all / hxx;
+  // The position's sensitivity to each reading, of the sensors used (the only ones
+  // read; one at a time, as the weights).
+  std::array<double, kMaxHalls> c{};
+  if (!with_gain)
+    for (int q = 0; q < n_on; ++q) {
+      const auto k = static_cast<std::size_t>(on[q]);
+      c[k] = wjx[k] / hxx;
+    }
   if (with_gain) {
     const double det = hxx * hee - hxe * hxe;
     if (!(det > 0.0)) return fix;
     var_x = hee / det;
     gain_sq = (hee * hee * qxx - 2.0 * hee * hxe * qxe + hxe * hxe * qee) / (det * det);
-    Eigen::Map<Column>(c.data()) = (hee * wjx_all - hxe * wu_all) / det;
+    for (int q = 0; q < n_on; ++q) {
+      const auto k = static_cast<std::size_t>(on[q]);
+      c[k] = (hee * wjx[k] - hxe * wu[k]) / det;
+    }
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
     const double ce = hxe / det;  // the position's sensitivity to the common gain's prior

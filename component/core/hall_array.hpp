@@ -74,10 +74,19 @@ class HallArray {
 
  private:
   bool usable(const RawSample& s, int i, std::uint32_t use_mask) const;
+  /// The cubic of every sensor on one grid interval, in the form evaluate_all()
+  /// takes it: the coefficients depend on the interval alone, and a solve's
+  /// iterations mostly stay on one interval, so it keeps them between its calls.
+  struct Cell {
+    int k = -1;  ///< the interval [k, k + 1] they are for (-1: none yet)
+    std::array<double, kMaxHalls> a3, b2, a, b, c, p1;  ///< 3 a, 2 b, a, b, c, and the knot at k
+  };
   /// Every sensor's table value and slope at `x_m` (HallTable::evaluate for sensors
   /// 0 .. sensors_ - 1, the same arithmetic): the grid cell is found once, and the
-  /// four knots around it are adjacent in memory for all sensors.
-  void evaluate_all(double x_m, std::array<double, kMaxHalls>& value_v,
+  /// four knots around it are adjacent in memory for all sensors. `cell` holds the
+  /// coefficients of the last interval evaluated; they are worked out again only
+  /// when `x_m` is on another one.
+  void evaluate_all(double x_m, Cell& cell, std::array<double, kMaxHalls>& value_v,
                     std::array<double, kMaxHalls>& slope_v_per_m) const;
 
   HallTable table_;
