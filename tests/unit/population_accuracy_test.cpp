@@ -21,8 +21,8 @@ core::FilterConfig shipped_tuning() {
   return loaded.config.axes.at(0).motor.filter;
 }
 
-/// The motor calibrated from one simulated calibration run with a ruler.
-bench::CalibrationOutcome calibrated_with_a_ruler(const sim::PopulationMotor& p) {
+/// The motor calibrated from one simulated calibration run, with a ruler or without.
+bench::CalibrationOutcome calibrated(const sim::PopulationMotor& p, bool with_ruler) {
   std::vector<core::ReferenceSegment> segments;
   std::string error;
   if (!bench::record_population_calibration(p, segments, error)) {
@@ -30,8 +30,11 @@ bench::CalibrationOutcome calibrated_with_a_ruler(const sim::PopulationMotor& p)
     failed.error = "recording the calibration run: " + error;
     return failed;
   }
-  return bench::calibrate_population_motor(p, segments, true);
+  return bench::calibrate_population_motor(p, segments, with_ruler);
 }
+
+bench::CalibrationOutcome calibrated_with_a_ruler(const sim::PopulationMotor& p) { return calibrated(p, true); }
+bench::CalibrationOutcome calibrated_without_a_ruler(const sim::PopulationMotor& p) { return calibrated(p, false); }
 
 class PopulationMotor : public ::testing::TestWithParam<std::uint64_t> {};
 
@@ -166,10 +169,7 @@ class PopulationNoRulerCoilField : public ::testing::TestWithParam<std::uint64_t
 TEST_P(PopulationNoRulerCoilField, TheTablesErrorsAreNotTakenForTheCoil) {
   const auto p = sim::draw_population_motor(GetParam(), shipped_tuning());
   std::printf("[ motor    ] %s\n", p.summary().c_str());
-  std::vector<core::ReferenceSegment> segments;
-  std::string why;
-  ASSERT_TRUE(bench::record_population_calibration(p, segments, why)) << why;
-  const auto cal = bench::calibrate_population_motor(p, segments, false);
+  const auto cal = calibrated_without_a_ruler(p);
   ASSERT_TRUE(cal.ok) << cal.error;
   const double truth = p.sim.imperfections.coil_field_v_per_mps2;
   std::printf("[ figures  ] coil field: true %.3f, calibrated without a ruler %.3f mV/(m/s^2)\n", truth * 1e3,
@@ -207,10 +207,7 @@ INSTANTIATE_TEST_SUITE_P(Seeds, PopulationNoRulerCoilField, ::testing::Values(33
 TEST(PopulationNoRulerRefusal, AJumpWithinASlowPassIsNotBlamedOnTheAccelerometer) {
   const auto p = sim::draw_population_motor(73, shipped_tuning());
   std::printf("[ motor    ] %s\n", p.summary().c_str());
-  std::vector<core::ReferenceSegment> segments;
-  std::string why;
-  ASSERT_TRUE(bench::record_population_calibration(p, segments, why)) << why;
-  const auto cal = bench::calibrate_population_motor(p, segments, false);
+  const auto cal = calibrated_without_a_ruler(p);
   std::printf("[ figures  ] %s\n", cal.ok ? "calibrated" : cal.error.c_str());
   if (cal.ok) GTEST_SKIP() << "motor 73 calibrates without a ruler now: this refusal has nothing left to check";
   EXPECT_NE(cal.error.find("jumped"), std::string::npos) << cal.error;
@@ -304,10 +301,7 @@ class PopulationNoRulerEnds : public ::testing::TestWithParam<std::uint64_t> {};
 TEST_P(PopulationNoRulerEnds, BeyondTheSlowPassesSigmaSaysSoAndValidIsWithheld) {
   const auto p = sim::draw_population_motor(GetParam(), shipped_tuning());
   std::printf("[ motor    ] %s\n", p.summary().c_str());
-  std::vector<core::ReferenceSegment> segments;
-  std::string error;
-  ASSERT_TRUE(bench::record_population_calibration(p, segments, error)) << error;
-  const auto cal = bench::calibrate_population_motor(p, segments, false);
+  const auto cal = calibrated_without_a_ruler(p);
   ASSERT_TRUE(cal.ok) << cal.error;
   EXPECT_TRUE(cal.good) << (cal.problems.empty() ? std::string() : cal.problems.front());
   const auto& m = cal.cal.model;
