@@ -267,15 +267,16 @@ struct AccelFit {
 /// only, not on the estimate, so it is made once and every iteration's fit reads it.
 class AccelerometerSide {
  public:
-  const std::vector<double>& az(const std::vector<RawSample>& s, double ts, int m) {
+  const std::vector<double>& az(const AccelerometerReadings& z, double ts, int m) {
     const auto found = az_.find(m);
     if (found != az_.end()) return found->second;
-    if (zz_.size() != s.size()) {
-      zz_.assign(s.size(), 0.0);
+    const std::size_t n = z.z.size();
+    if (zz_.size() != n) {
+      zz_.assign(n, 0.0);
       double vel = 0.0, last = 0.0;
-      for (std::size_t i = 0; i < s.size(); ++i) {
+      for (std::size_t i = 0; i < n; ++i) {
         if (i > 0) zz_[i] = zz_[i - 1] + vel * ts;
-        if (s[i].accel_valid) last = accel_reading(s[i]);
+        if (z.valid[i]) last = z.z[i];
         vel += last * ts;
       }
     }
@@ -301,10 +302,10 @@ struct FilteredSides {
   std::vector<char> use;
 };
 
-void filter_sides(const std::vector<RawSample>& s, const AccelerometerReadings& z, const std::vector<double>& xr,
+void filter_sides(const AccelerometerReadings& z, const std::vector<double>& xr,
                   const std::vector<char>& bridged, double ts, int m, double max_delay_s, AccelerometerSide& side,
                   FilteredSides& out) {
-  const std::size_t n = s.size();
+  const std::size_t n = z.z.size();
   out.use.assign(n, 0);
   out.ar.clear();
   out.az = nullptr;
@@ -315,7 +316,7 @@ void filter_sides(const std::vector<RawSample>& s, const AccelerometerReadings& 
   for (std::size_t i = 0; i < n; ++i)
     bad[i + 1] = bad[i] + ((!z.valid[i] || (!bridged.empty() && bridged[i])) ? 1 : 0);
   differentiate(xr, ts, m, v, out.ar, ok_r);
-  out.az = &side.az(s, ts, m);
+  out.az = &side.az(z, ts, m);
   const auto reach = static_cast<std::size_t>(m) + 2 + static_cast<std::size_t>(std::ceil(max_delay_s / ts));
   for (std::size_t i = reach; i + reach < n; ++i)
     if (ok_r[i] && bad[i + reach + 1] == bad[i - reach]) out.use[i] = 1;
@@ -340,15 +341,15 @@ void filter_sides(const std::vector<RawSample>& s, const AccelerometerReadings& 
 /// the delay by up to 70 us, while the calibration motion's own acceleration is far
 /// slower than the filter's cut-off and still times the delay to about 10 us. The
 /// short filter only counts the fast samples and fits the bias.
-AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const std::vector<ReferenceSegment>& estimate,
+AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& estimate,
                            const std::vector<std::vector<char>>& bridged, const std::vector<double>& ts,
                            const IdentificationConfig& ic, double scale_half_window_s,
                            const std::vector<AccelerometerReadings>& readings, std::vector<AccelerometerSide>& sides) {
   AccelFit fit;
-  const std::size_t ng = segments.size();
+  const std::size_t ng = estimate.size();
   std::vector<FilteredSides> f(ng);
   for (std::size_t g = 0; g < ng; ++g) {
-    filter_sides(segments[g].samples, readings[g], estimate[g].reference_m, bridged[g], ts[g],
+    filter_sides(readings[g], estimate[g].reference_m, bridged[g], ts[g],
                  ic.derivative_half_window, ic.max_accel_delay_s, sides[g], f[g]);
     for (std::size_t i = 0; i < f[g].use.size(); ++i)
       if (f[g].use[i] && std::abs(f[g].ar[i]) >= ic.dynamic_min_accel_mps2) ++fit.dynamic_samples;
@@ -400,7 +401,7 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& segments, const 
   if (m_long > ic.derivative_half_window) {
     fl.resize(ng);
     for (std::size_t g = 0; g < ng; ++g)
-      filter_sides(segments[g].samples, readings[g], estimate[g].reference_m, bridged[g], ts[g], m_long,
+      filter_sides(readings[g], estimate[g].reference_m, bridged[g], ts[g], m_long,
                    ic.max_accel_delay_s, sides[g], fl[g]);
   }
   const auto& fd = fl.empty() ? f : fl;
@@ -708,12 +709,12 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
           const double det = pa_x * v1 - p1_x * va;
           const double alpha = det != 0.0 ? (dx * v1 - p1_x * dv) / det : 0.0;
           const double beta = det != 0.0 ? (pa_x * dv - dx * va) / det : 0.0;
-          if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5)
+          if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5) {
             refused_bridge_scale = std::max(refused_bridge_scale, std::abs(alpha));
-          if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5 && pa.v * pb.v > 0.0 &&
-              std::abs(pa.v - pb.v) <= 0.1 * std::abs(pa.v) && std::abs(dx) > std::abs(jump_m)) {
-            jump_m = dx;
-            jump_at_s = static_cast<double>(from) * ts[g];
+            if (pa.v * pb.v > 0.0 && std::abs(pa.v - pb.v) <= 0.1 * std::abs(pa.v) && std::abs(dx) > std::abs(jump_m)) {
+              jump_m = dx;
+              jump_at_s = static_cast<double>(from) * ts[g];
+            }
           }
           if (det != 0.0 && std::isfinite(alpha) && std::isfinite(beta) && std::abs(alpha) < 0.5) {
             for (std::size_t i = from; i < to; ++i) {
@@ -954,7 +955,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
     // the last is known before the identification runs.
     AccelFit af;
     if (it > 0)
-      af = fit_accelerometer(segments, work, bridged, ts, ic, cfg.accel_scale_half_window_s, readings, accel_sides);
+      af = fit_accelerometer(work, bridged, ts, ic, cfg.accel_scale_half_window_s, readings, accel_sides);
     bool will_converge = false, will_stall = false;
     const bool last =
         it + 1 == iterations || (af.ok && stops(std::abs(af.scale - previous_scale), will_converge, will_stall));
