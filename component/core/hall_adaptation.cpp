@@ -94,6 +94,10 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
 void HallAdaptation::update_common(double relative_change, double variance, double share) {
   if (!enabled_ || !std::isfinite(relative_change) || !(variance > 0.0)) return;
   share = std::clamp(share, 0.0, 1.0);
+  if (joint_) {
+    common_jointly(relative_change, variance, share);
+    return;
+  }
   // The fix combined its sensors (information I) with the prior p_common_. Their
   // model is not exact (the table's own residual repeats along the travel), so
   // one fix says no more than model_var_common_: the update with the sensors'
@@ -341,6 +345,65 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
   joint_update(r, u, sl, learn_mask, learn_only_mask, joint_share);
 }
 
+void HallAdaptation::common_jointly(double relative_change, double variance, double share) {
+  // As update_common takes the fix's estimate (its mean; its information worth
+  // `share` of a new fix's, and no better than model_var_common_), with the
+  // covariance the common gain shares with the sensors' gains and offsets
+  // (joint_update): they move with it by their regression on it, and their
+  // covariance loses what that regression explained.
+  const double p = p_common_, m = model_var_common_;
+  const double info = share * std::max(0.0, 1.0 / variance - 1.0 / p);
+  if (!(info > 0.0)) return;
+  const double den = 1.0 + p * info + m * info;
+  const double change = relative_change * (1.0 + p * info) / den;
+  const double p_new = p * (1.0 + m * info) / den;
+  const int n = 2 * sensors_;
+  // What the covariance loses, (1 - p_new / p) / p pgc pgc^T, is the same direction
+  // from fix to fix until a joint update turns it (pgc only shrinks in between): it
+  // is summed against the direction the first of them saw and taken out once every
+  // kJointEvery fixes (flush_common), the cost of a joint update's. Until then the
+  // covariance holds a little more than it should, never less.
+  if (!common_pending_) {
+    for (int j = 0; j < n; ++j) pgc_first_[j] = pgc_[j];
+    common_loss_ = 0.0;
+    common_scale_ = 1.0;
+    common_pending_ = true;
+  }
+  common_loss_ += (1.0 - p_new / p) / p * common_scale_ * common_scale_;
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    const double g = gamma_[k] + pgc_[2 * i] / p * change;
+    const double d = delta_[k] + pgc_[2 * i + 1] / p * change;
+    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
+    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
+    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
+  }
+  const double shrink = p_new / p;
+  for (int j = 0; j < n; ++j) pgc_[j] *= shrink;
+  common_scale_ *= shrink;
+  common_gain_ = std::clamp((1.0 + common_gain_) * (1.0 + change) - 1.0, -gain_limit_, gain_limit_);
+  p_common_ = std::max(p_new, 1e-14);
+  if (++common_count_ >= kJointEvery) flush_common();
+}
+
+void HallAdaptation::flush_common() {
+  common_count_ = 0;
+  if (!common_pending_) return;
+  common_pending_ = false;
+  const int n = 2 * sensors_;
+  for (int j = 0; j < n; ++j) {
+    const double c = common_loss_ * pgc_first_[j];
+    for (int l = 0; l < n; ++l) p_[j][l] -= c * pgc_first_[l];
+  }
+  for (int i = 0; i < sensors_; ++i) {
+    pgg(i) = std::max(pgg(i), 1e-14);
+    pdd(i) = std::max(pdd(i), 1e-14);
+    const double bound = std::sqrt(pgg(i) * pdd(i));
+    pgd(i) = std::clamp(pgd(i), -bound, bound);
+    p_[2 * i + 1][2 * i] = pgd(i);
+  }
+}
+
 void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
                                   const std::array<double, kMaxHalls>& sl, std::uint32_t learn_mask,
                                   std::uint32_t learn_only_mask, double share) {
@@ -349,6 +412,7 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
   // parameters) and left out afterwards. Sequential scalar updates of the joint
   // state (deviations from the current parameters, in x). The sample counts as
   // `share` of a new one: its noise is taken 1 / share as large.
+  flush_common();  // the common gain's updates since the last, before the direction turns
   const int n = 2 * sensors_;
   // The parameters' deviations, and the shift's (e).
   double x[kParams] = {}, xe = 0.0;
@@ -356,8 +420,23 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
   // own variance), kept here: it is re-opened for every sample and left out after.
   // Uncorrelated with the parameters at first.
   double pe[kParams] = {}, pee = max_shift_m_ * max_shift_m_;
-  // P h for the sensor being taken in: ph[j] for parameter j, phe for the shift.
-  double ph[kParams], phe;
+  // The gain every sensor shares is the fixes' (update_common), and the residuals
+  // were taken with it as it stands: its error is in every residual (u_i times it), and
+  // the common gain and the mean of the sensors' own gains are one thing seen two
+  // ways. Taken as exact here, a pattern of offsets that a shift and a common gain
+  // explain at every place was learnt twice over (the fixes moved the common gain to
+  // absorb it, so the sensors' residuals no longer showed it, and their covariance
+  // shrank as if they had): after a warm start the sensors' offsets stayed 3-5 sigma
+  // off for tenths of a second, and sigma was too small for the 7-11 um of error it
+  // left. So the common gain is a considered state here (Schmidt): its variance
+  // p_common_ and its covariance with the parameters (pgc_, kept between samples)
+  // enter every gain and are kept up to date, but this update does not move it.
+  double* pg = pgc_;
+  const double pgn = p_common_;
+  double peg = 0.0;
+  // P h for the sensor being taken in: ph[j] for parameter j, phe for the shift,
+  // phg for the common gain.
+  double ph[kParams], phe, phg;
   // The updates below keep only the upper triangle of p_ (row <= column) and mirror
   // it once at the end: each entry as before, without a scattered store for every one
   // of them. The lower triangle is stale until then and is never read.
@@ -365,15 +444,17 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
     const auto k = static_cast<std::size_t>(i);
     const int a = 2 * i, b = 2 * i + 1;
     const double uk = u[k], sk = sl[k];
-    // ph = P h with h = (u at a, 1 at b, slope at the shift): column a and b of the
-    // symmetric P, read from the upper triangle (above row a down the columns, past
-    // row b along the rows), the same sum in the same order for every state.
-    for (int j = 0; j < a; ++j) ph[j] = p_[j][a] * uk + p_[j][b] + pe[j] * sk;
-    ph[a] = p_[a][a] * uk + p_[a][b] + pe[a] * sk;
-    ph[b] = p_[a][b] * uk + p_[b][b] + pe[b] * sk;
-    for (int j = b + 1; j < n; ++j) ph[j] = p_[a][j] * uk + p_[b][j] + pe[j] * sk;
-    phe = pe[a] * uk + pe[b] + pee * sk;
-    const double s = uk * ph[a] + ph[b] + sk * phe + rv / share;
+    // ph = P h with h = (u at a, 1 at b, slope at the shift, u at the common gain):
+    // column a and b of the symmetric P, read from the upper triangle (above row a
+    // down the columns, past row b along the rows), the same sum in the same order
+    // for every state.
+    for (int j = 0; j < a; ++j) ph[j] = p_[j][a] * uk + p_[j][b] + pe[j] * sk + pg[j] * uk;
+    ph[a] = p_[a][a] * uk + p_[a][b] + pe[a] * sk + pg[a] * uk;
+    ph[b] = p_[a][b] * uk + p_[b][b] + pe[b] * sk + pg[b] * uk;
+    for (int j = b + 1; j < n; ++j) ph[j] = p_[a][j] * uk + p_[b][j] + pe[j] * sk + pg[j] * uk;
+    phe = pe[a] * uk + pe[b] + pee * sk + peg * uk;
+    phg = pg[a] * uk + pg[b] + peg * sk + pgn * uk;
+    const double s = uk * ph[a] + ph[b] + sk * phe + uk * phg + rv / share;
     if (!(s > 0.0)) return;
     const double nu = r[k] - (uk * x[a] + x[b] + sk * xe);
     if (whole) {
@@ -389,8 +470,10 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
         double* row = p_[j];
         for (int l = j; l < n; ++l) row[l] -= kj * ph[l];
         pe[j] -= kj * phe;
+        pg[j] -= kj * phg;
       }
       pee -= kge * phe;
+      peg -= kge * phg;
     } else {
       // A sensor judged faulty learns from the others but tells them nothing: only
       // its own parameters move, against the position error the others found.

@@ -28,7 +28,10 @@
 // covariance, with the sample's position error as a nuisance (joint_update): what
 // the array cannot tell from a shift is then held as a correlation between the
 // sensors, and the fix's variance (HallArray::solve) takes it with its
-// correlations instead of sensor by sensor. A CUSUM of each sensor's
+// correlations instead of sensor by sensor. The common gain stays the fixes' to
+// learn; the joint update considers its uncertainty and keeps its covariance with
+// every sensor's gain and offset (a Schmidt consider state), so that what a shift
+// and a common gain together explain is not learnt twice. A CUSUM of each sensor's
 // normalised residual catches a change faster than the random walk allows and
 // re-opens that sensor's covariance, so the parameters follow within a few tens of
 // samples. Gains and offsets are bounded: a sensor that needs more than
@@ -208,6 +211,16 @@ class HallAdaptation {
   // re-opened for every sample; its row and column live only there.)
   static constexpr int kParams = 2 * kMaxHalls;
   double p_[kParams][kParams] = {};
+  /// The common gain's covariance with each parameter (joint learning: joint_update
+  /// considers the common gain, common_jointly learns it).
+  double pgc_[kParams] = {};
+  void common_jointly(double relative_change, double variance, double share);
+  void flush_common();
+  // common_jointly's covariance updates, taken out together (flush_common).
+  double pgc_first_[kParams] = {};
+  double common_loss_ = 0.0, common_scale_ = 1.0;
+  bool common_pending_ = false;
+  int common_count_ = 0;
   double& pgg(int i) { return p_[2 * i][2 * i]; }
   double& pgd(int i) { return p_[2 * i][2 * i + 1]; }
   double& pdd(int i) { return p_[2 * i + 1][2 * i + 1]; }
