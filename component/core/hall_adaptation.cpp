@@ -357,30 +357,21 @@ void HallAdaptation::common_jointly(double relative_change, double variance, dou
   const double den = 1.0 + p * info + m * info;
   const double change = relative_change * (1.0 + p * info) / den;
   const double p_new = p * (1.0 + m * info) / den;
-  const int n = 2 * sensors_;
-  // What the covariance loses, (1 - p_new / p) / p pgc pgc^T, is the same direction
-  // from fix to fix until a joint update turns it (pgc only shrinks in between): it
-  // is summed against the direction the first of them saw and taken out once every
-  // kJointEvery fixes (flush_common), the cost of a joint update's. Until then the
-  // covariance holds a little more than it should, never less.
+  // The sensors' share of it is along pgc_, which only shrinks (by p_new / p) until a
+  // joint update turns it: summed against pgc_ as it was at the first fix since then
+  // (common_scale_: how much it has shrunk since), and applied once every kJointEvery
+  // fixes (flush_common), the cost of a joint update's. Until then the sensors lag by
+  // the regression's few fixes and their covariance holds a little more than it
+  // should, never less.
   if (!common_pending_) {
-    for (int j = 0; j < n; ++j) pgc_first_[j] = pgc_[j];
     common_loss_ = 0.0;
+    common_move_ = 0.0;
     common_scale_ = 1.0;
     common_pending_ = true;
   }
-  common_loss_ += (1.0 - p_new / p) / p * common_scale_ * common_scale_;
-  for (int i = 0; i < sensors_; ++i) {
-    const auto k = static_cast<std::size_t>(i);
-    const double g = gamma_[k] + pgc_[2 * i] / p * change;
-    const double d = delta_[k] + pgc_[2 * i + 1] / p * change;
-    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
-    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
-    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
-  }
-  const double shrink = p_new / p;
-  for (int j = 0; j < n; ++j) pgc_[j] *= shrink;
-  common_scale_ *= shrink;
+  common_loss_ += (1.0 - p_new / p) / p * common_scale_ * common_scale_;  // P -= that pgc pgc^T
+  common_move_ += change / p * common_scale_;                            // x += that pgc
+  common_scale_ *= p_new / p;
   common_gain_ = std::clamp((1.0 + common_gain_) * (1.0 + change) - 1.0, -gain_limit_, gain_limit_);
   p_common_ = std::max(p_new, 1e-14);
   if (++common_count_ >= kJointEvery) flush_common();
@@ -392,16 +383,23 @@ void HallAdaptation::flush_common() {
   common_pending_ = false;
   const int n = 2 * sensors_;
   for (int j = 0; j < n; ++j) {
-    const double c = common_loss_ * pgc_first_[j];
-    for (int l = 0; l < n; ++l) p_[j][l] -= c * pgc_first_[l];
+    const double c = common_loss_ * pgc_[j];
+    for (int l = 0; l < n; ++l) p_[j][l] -= c * pgc_[l];
   }
   for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    const double g = gamma_[k] + common_move_ * pgc_[2 * i];
+    const double d = delta_[k] + common_move_ * pgc_[2 * i + 1];
+    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
+    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
+    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
     pgg(i) = std::max(pgg(i), 1e-14);
     pdd(i) = std::max(pdd(i), 1e-14);
     const double bound = std::sqrt(pgg(i) * pdd(i));
     pgd(i) = std::clamp(pgd(i), -bound, bound);
     p_[2 * i + 1][2 * i] = pgd(i);
   }
+  for (int j = 0; j < n; ++j) pgc_[j] *= common_scale_;
 }
 
 void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,

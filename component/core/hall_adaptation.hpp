@@ -216,9 +216,8 @@ class HallAdaptation {
   double pgc_[kParams] = {};
   void common_jointly(double relative_change, double variance, double share);
   void flush_common();
-  // common_jointly's covariance updates, taken out together (flush_common).
-  double pgc_first_[kParams] = {};
-  double common_loss_ = 0.0, common_scale_ = 1.0;
+  // common_jointly's updates of the sensors, applied together (flush_common).
+  double common_loss_ = 0.0, common_move_ = 0.0, common_scale_ = 1.0;
   bool common_pending_ = false;
   int common_count_ = 0;
   double& pgg(int i) { return p_[2 * i][2 * i]; }

@@ -43,8 +43,8 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
       hall_(config.motor, std::move(table)),
       kf_(config.motor.sample_period_s(), config.motor.filter, config.sensors),
       homing_(config.motor.magnet_pitch_m, config.signature),
-      adapt_(config.motor, config.motor.sample_period_s()),
-      period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))) {
+      period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))),
+      adapt_(config.motor, config.motor.sample_period_s()) {
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
   const int n = std::min(config.motor.hall.count, kMaxHalls);
