@@ -320,16 +320,11 @@ void HallAdaptation::learn(const std::array<double, kMaxHalls>& r, const std::ar
     // The update itself takes the sample as worth `share` of a new one.
     const double s = s_cusum + rv * (1.0 / share - 1.0);
     const double kg = ph_g / s, kd = ph_d / s;
-    const double g = gamma_[k] + kg * res;
-    const double d = delta_[k] + kd * res;
-    pgg(i) = std::max(pgg(i) - kg * ph_g, 1e-14);
-    pdd(i) = std::max(pdd(i) - kd * ph_d, 1e-14);
-    const double bound = std::sqrt(pgg(i) * pdd(i));
-    pgd(i) = std::clamp(pgd(i) - kg * ph_d, -bound, bound);
-    p_[2 * i + 1][2 * i] = pgd(i);
-    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
-    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
-    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
+    pgg(i) -= kg * ph_g;
+    pdd(i) -= kd * ph_d;
+    pgd(i) -= kg * ph_d;
+    keep_block(i);
+    move_sensor(i, kg * res, kd * res);
   }
   if (!joint_) return;
   // Then all of them together, on every kJointEvery-th such sample.
@@ -363,12 +358,6 @@ void HallAdaptation::common_jointly(double relative_change, double variance, dou
   // fixes (flush_common), the cost of a joint update's. Until then the sensors lag by
   // the regression's few fixes and their covariance holds a little more than it
   // should, never less.
-  if (!common_pending_) {
-    common_loss_ = 0.0;
-    common_move_ = 0.0;
-    common_scale_ = 1.0;
-    common_pending_ = true;
-  }
   common_loss_ += (1.0 - p_new / p) / p * common_scale_ * common_scale_;  // P -= that pgc pgc^T
   common_move_ += change / p * common_scale_;                            // x += that pgc
   common_scale_ *= p_new / p;
@@ -378,28 +367,37 @@ void HallAdaptation::common_jointly(double relative_change, double variance, dou
 }
 
 void HallAdaptation::flush_common() {
-  common_count_ = 0;
-  if (!common_pending_) return;
-  common_pending_ = false;
+  if (common_count_ == 0) return;  // no fix since the last
   const int n = 2 * sensors_;
   for (int j = 0; j < n; ++j) {
     const double c = common_loss_ * pgc_[j];
     for (int l = 0; l < n; ++l) p_[j][l] -= c * pgc_[l];
   }
   for (int i = 0; i < sensors_; ++i) {
-    const auto k = static_cast<std::size_t>(i);
-    const double g = gamma_[k] + common_move_ * pgc_[2 * i];
-    const double d = delta_[k] + common_move_ * pgc_[2 * i + 1];
-    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
-    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
-    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
-    pgg(i) = std::max(pgg(i), 1e-14);
-    pdd(i) = std::max(pdd(i), 1e-14);
-    const double bound = std::sqrt(pgg(i) * pdd(i));
-    pgd(i) = std::clamp(pgd(i), -bound, bound);
-    p_[2 * i + 1][2 * i] = pgd(i);
+    move_sensor(i, common_move_ * pgc_[2 * i], common_move_ * pgc_[2 * i + 1]);
+    keep_block(i);
   }
   for (int j = 0; j < n; ++j) pgc_[j] *= common_scale_;
+  common_count_ = 0;
+  common_loss_ = common_move_ = 0.0;
+  common_scale_ = 1.0;
+}
+
+void HallAdaptation::move_sensor(int i, double d_gain, double d_offset_v) {
+  const auto k = static_cast<std::size_t>(i);
+  const double g = gamma_[k] + d_gain;
+  const double d = delta_[k] + d_offset_v;
+  at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
+  gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
+  delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
+}
+
+void HallAdaptation::keep_block(int i) {
+  pgg(i) = std::max(pgg(i), 1e-14);
+  pdd(i) = std::max(pdd(i), 1e-14);
+  const double bound = std::sqrt(pgg(i) * pdd(i));
+  pgd(i) = std::clamp(pgd(i), -bound, bound);
+  p_[2 * i + 1][2 * i] = pgd(i);
 }
 
 void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,
@@ -506,19 +504,10 @@ void HallAdaptation::joint_update(const std::array<double, kMaxHalls>& r, const 
     look_dd_[k] = 1.0 / (1.0 / look_dd_[k] + look_info);
   }
   for (int i = 0; i < sensors_; ++i) {
-    const auto k = static_cast<std::size_t>(i);
-    pgg(i) = std::max(pgg(i), 1e-14);
-    pdd(i) = std::max(pdd(i), 1e-14);
-    const double bound = std::sqrt(pgg(i) * pdd(i));
-    pgd(i) = std::clamp(pgd(i), -bound, bound);
-    p_[2 * i + 1][2 * i] = pgd(i);
+    keep_block(i);
     // Every sensor's parameters move with what was learnt, through their correlations
     // with the sensors that took part.
-    const double g = gamma_[k] + x[2 * i];
-    const double d = delta_[k] + x[2 * i + 1];
-    at_limit_[k] = std::abs(g) >= gain_limit_ || std::abs(d) >= offset_limit_v_;
-    gamma_[k] = std::clamp(g, -gain_limit_, gain_limit_);
-    delta_[k] = std::clamp(d, -offset_limit_v_, offset_limit_v_);
+    move_sensor(i, x[2 * i], x[2 * i + 1]);
   }
 }
 

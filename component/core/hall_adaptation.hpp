@@ -216,10 +216,16 @@ class HallAdaptation {
   double pgc_[kParams] = {};
   void common_jointly(double relative_change, double variance, double share);
   void flush_common();
-  // common_jointly's updates of the sensors, applied together (flush_common).
+  // common_jointly's updates of the sensors since the last flush_common (common_count_
+  // fixes), applied together there.
   double common_loss_ = 0.0, common_move_ = 0.0, common_scale_ = 1.0;
-  bool common_pending_ = false;
   int common_count_ = 0;
+  /// Sensor i's gain and offset moved by these, within their bounds (a move beyond
+  /// them sets at_limit_).
+  void move_sensor(int i, double d_gain, double d_offset_v);
+  /// Sensor i's own 2 x 2 block of p_ kept a covariance: variances above zero, their
+  /// covariance within what they allow, mirrored.
+  void keep_block(int i);
   double& pgg(int i) { return p_[2 * i][2 * i]; }
   double& pgd(int i) { return p_[2 * i][2 * i + 1]; }
   double& pdd(int i) { return p_[2 * i + 1][2 * i + 1]; }

@@ -709,14 +709,15 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
           const double det = pa_x * v1 - p1_x * va;
           const double alpha = det != 0.0 ? (dx * v1 - p1_x * dv) / det : 0.0;
           const double beta = det != 0.0 ? (pa_x * dv - dx * va) / det : 0.0;
-          if (det != 0.0 && std::isfinite(alpha) && std::abs(alpha) >= 0.5) {
+          const bool solved = det != 0.0 && std::isfinite(alpha);
+          if (solved && std::abs(alpha) >= 0.5) {
             refused_bridge_scale = std::max(refused_bridge_scale, std::abs(alpha));
             if (pa.v * pb.v > 0.0 && std::abs(pa.v - pb.v) <= 0.1 * std::abs(pa.v) && std::abs(dx) > std::abs(jump_m)) {
               jump_m = dx;
               jump_at_s = static_cast<double>(from) * ts[g];
             }
           }
-          if (det != 0.0 && std::isfinite(alpha) && std::isfinite(beta) && std::abs(alpha) < 0.5) {
+          if (solved && std::isfinite(beta) && std::abs(alpha) < 0.5) {
             for (std::size_t i = from; i < to; ++i) {
               bridged[g][i] = 1;
               xr[i] = xz[i - from] + alpha * xa[i - from] + beta * x1[i - from];
