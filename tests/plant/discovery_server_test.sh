@@ -32,8 +32,10 @@
 #     every axis near 1000 Hz. A probe (ve_pace_floor at SCHED_FIFO 50, the sample threads'
 #     priority, waking at 1 kHz and doing nothing else) tells the host's stalls from the
 #     product's: offered misses are judged only when the probe was never 4 ms late, requested
-#     ones (10 ms) only when neither it nor a second probe at the monitor's priority (40)
-#     was ever 9 ms late; otherwise they are printed with the probes' figures (this host is
+#     ones (10 ms) only when neither it nor a probe just above the monitor's priority (41)
+#     was ever 9 ms late; both also need a probe at normal priority (Fast DDS's own
+#     threads, whose locks a write shares) never 4 / 9 ms late. One probe of each pinned
+#     to each CPU. Otherwise they are printed with the probes' figures (this host is
 #     shared);
 #   - both servers killed (SIGKILL): 30 s later (longer than a participant's 20 s lease, which
 #     no server renews meanwhile) every axis still arrives at the monitor;
@@ -315,45 +317,63 @@ fi
 grep -q "DDS QoS" "$WORK/d-e1.err" && echo "[ encoder  ] $(grep -m1 'DDS QoS' "$WORK/d-e1.err" | cut -c1-160)"
 sleep_until_after "$tc2" 11
 kill -USR1 "$PID_traffic2"   # the start: the first 11 s, as in phase 1
-setpriv --pdeathsig KILL setsid chrt -f 50 "$PROBE" --rate 1000 --stall-ms 4 >"$WORK/probe.out" 2>&1 </dev/null &
-PIDS+=($!)
-PID_probe=$!
-# The monitor's side: its reader takes the samples at SCHED_FIFO 40, below the five
-# encoders' sample threads; a stall there is a gap in arrivals however the encoders ran.
-setpriv --pdeathsig KILL setsid chrt -f 40 "$PROBE" --rate 1000 --stall-ms 4 >"$WORK/probe40.out" 2>&1 </dev/null &
-PIDS+=($!)
-PID_probe40=$!
+# Probes of the host's stalls, one per CPU and priority, each pinned to its CPU: a CPU
+# the hypervisor or the kernel holds stalls only the threads on it, which a probe
+# elsewhere would not see. At 50, the encoders' sample threads' priority; at 41, just
+# above the monitor's (40): what stalls the monitor from outside (the encoders, the
+# kernel, the host), not the monitor's own work.
+# And at normal priority (0): Fast DDS's own threads in an encoder (its event and
+# receive threads) run there and take the writer's locks that a write waits for.
+PROBE_PIDS=()
+for cpu in $(seq 0 $(($(nproc) - 1))); do
+  for prio in 50 41 0; do
+    policy=(chrt -f "$prio"); [ "$prio" = 0 ] && policy=(chrt -o 0)
+    setpriv --pdeathsig KILL setsid taskset -c "$cpu" "${policy[@]}" "$PROBE" --rate 1000 --stall-ms 4 \
+      >"$WORK/probe-$prio-cpu$cpu.out" 2>&1 </dev/null &
+    PIDS+=($!)
+    PROBE_PIDS+=($!)
+  done
+done
 table_a=$(last_table "$WORK/mon2.out")
 sleep_until_after "$tc2" 21
 kill -USR1 "$PID_traffic2"   # the next 10 s
 sleep_until_after "$tc2" $((11 + WINDOW_S))
 table_b=$(last_table "$WORK/mon2.out")
 kill -USR1 "$PID_traffic2"   # end of the window
-stop_group "$PID_probe" INT
-stop_group "$PID_probe40" INT
-probe=$(grep END "$WORK/probe.out")
-stalls=$(field "$probe" stalls); max_late_us=$(field "$probe" max_late_us)
-probe40=$(grep END "$WORK/probe40.out")
-stalls40=$(field "$probe40" stalls); max_late40_us=$(field "$probe40" max_late_us)
+for pid in "${PROBE_PIDS[@]}"; do stop_group "$pid" INT; done
+# probe_figures PRIO: sets p_stalls (summed) and p_late_us (the latest wake-up) over
+# that priority's probes.
+probe_figures() {
+  local f line n m
+  p_stalls=0; p_late_us=0
+  for f in "$WORK"/probe-"$1"-cpu*.out; do
+    line=$(grep END "$f")
+    n=$(field "$line" stalls); m=$(field "$line" max_late_us)
+    if [ -z "$n" ] || [ -z "$m" ]; then
+      fail "the probe $(basename "$f" .out) did not report: $(cat "$f")"
+      continue
+    fi
+    p_stalls=$((p_stalls + n)); [ "$m" -gt "$p_late_us" ] && p_late_us=$m
+  done
+}
+probe_figures 50; stalls=$p_stalls; max_late_us=$p_late_us
+probe_figures 41; stalls41=$p_stalls; max_late41_us=$p_late_us
+probe_figures 0; stalls0=$p_stalls; max_late0_us=$p_late_us
+# Offered misses (5 ms) are the encoders' sample threads' (priority 50), whose writes
+# wait for any Fast DDS thread of the encoder holding the writer's lock (normal
+# priority). A requested miss is a 10 ms gap in arrivals at the monitor: the encoders'
+# threads and the monitor's (40) both make it. A stall at any of them decides.
 judge_offered=1; judge_requested=1
-if [ -z "$stalls" ]; then
-  fail "the probe did not report: $(cat "$WORK/probe.out")"
-  stalls=0; max_late_us=0
-fi
-if [ -z "$stalls40" ]; then
-  fail "the monitor's probe did not report: $(cat "$WORK/probe40.out")"
-  stalls40=0; max_late40_us=0
-fi
-# Offered misses are the encoders' sample threads' (priority 50). A requested miss is a
-# 10 ms gap in arrivals at the monitor: the encoders' threads and the monitor's (40)
-# both make it, so the later of the two probes decides.
 [ "$stalls" -gt 0 ] && judge_offered=0
+[ "$stalls0" -gt 0 ] && judge_offered=0
 [ "$max_late_us" -ge 9000 ] && judge_requested=0
-[ "$max_late40_us" -ge 9000 ] && judge_requested=0
-echo "[ probe    ] SCHED_FIFO 50 at 1 kHz over the window: $stalls wake-up(s) 4 ms or more late, the latest $max_late_us us; load average $(cut -d' ' -f1-3 /proc/loadavg)"
-echo "[ probe    ] SCHED_FIFO 40 (the monitor's) at 1 kHz: $stalls40 wake-up(s) 4 ms or more late, the latest $max_late40_us us"
-[ $judge_offered = 0 ] && echo "[ note     ] the host stalled a real-time thread for 4 ms or more: offered deadline misses are printed, not judged"
-[ $judge_requested = 0 ] && echo "[ note     ] the host stalled the encoders' or the monitor's real-time thread for 9 ms or more: requested deadline misses are printed, not judged"
+[ "$max_late41_us" -ge 9000 ] && judge_requested=0
+[ "$max_late0_us" -ge 9000 ] && judge_requested=0
+echo "[ probe    ] SCHED_FIFO 50 at 1 kHz on each of $(nproc) CPUs over the window: $stalls wake-up(s) 4 ms or more late, the latest $max_late_us us; load average $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "[ probe    ] SCHED_FIFO 41 (just above the monitor's 40), the same: $stalls41 wake-up(s) 4 ms or more late, the latest $max_late41_us us"
+echo "[ probe    ] normal priority (SCHED_OTHER, nice 0), the same: $stalls0 wake-up(s) 4 ms or more late, the latest $max_late0_us us"
+[ $judge_offered = 0 ] && echo "[ note     ] the host stalled an encoder's sample or DDS thread for 4 ms or more: offered deadline misses are printed, not judged"
+[ $judge_requested = 0 ] && echo "[ note     ] the host stalled an encoder's or the monitor's thread for 9 ms or more: requested deadline misses are printed, not judged"
 echo "[ window   ] ${WINDOW_S} s; per axis: rate Hz, sequence gaps, requested / offered deadline periods missed (in the window)"
 for id in $(seq 1 "$NAX"); do
   rate=$(table_field "$table_b" "$id" rate)
