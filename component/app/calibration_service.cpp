@@ -1,5 +1,7 @@
 #include "calibration_service.hpp"
 
+#include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <time.h>
@@ -150,6 +152,11 @@ void CalibrationService::handle(const ve::dds::CalibrationCommand& c) {
 
 void CalibrationService::work(Job job) {
   // Below the axis threads: on a small machine the calibration takes the idle CPU only.
+  // This thread is started from a Fast DDS receive thread (the command's callback),
+  // whose real-time priority (realtime.dds_thread_priority) it would otherwise inherit.
+  sched_param normal{};
+  normal.sched_priority = 0;
+  pthread_setschedparam(pthread_self(), SCHED_OTHER, &normal);
   setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
   const config::AxisConfig& axis = job.axis;
   const std::uint32_t id = axis.id;

@@ -580,6 +580,25 @@ int run_command(const RunOptions& options) {
     loops.push_back(std::move(loop));
   }
 
+  // Real time (the machine file's `realtime:`): memory is locked here and every
+  // setting is tried once; each sample thread takes its CPUs and priority before its
+  // first sample. Fast DDS's threads inherit the priority of the thread that creates
+  // its entities: this one, from begin_dds_threads() to end_dds_threads().
+  std::vector<std::string> axis_names;
+  for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
+  Realtime realtime(machine.realtime, axis_names);
+  if (!realtime.ok()) return 1;
+  struct DdsThreadsScope {
+    Realtime& rt;
+    bool open = true;
+    explicit DdsThreadsScope(Realtime& r) : rt(r) { rt.begin_dds_threads(); }
+    void end() {
+      if (open) rt.end_dds_threads();
+      open = false;
+    }
+    ~DdsThreadsScope() { end(); }
+  } dds_threads(realtime);
+
   DdsOptions dds_options;
   dds_options.domain = machine.dds.domain;
   dds_options.profiles_file = machine.dds.profiles_file;
@@ -642,6 +661,7 @@ int run_command(const RunOptions& options) {
       spdlog::error("cannot create the DDS calibration reader/writer (check the QoS in the profiles file)");
       return 1;
     }
+    dds_threads.end();  // every DDS entity exists: the rest of this thread's work is at normal priority
     spdlog::info("calibration over DDS: commands on '{}', status on '{}' (simulator axes; a new calibration takes "
                  "effect on the next start)",
                  kCalibrationCommandTopic, kCalibrationStatusTopic);
@@ -672,12 +692,6 @@ int run_command(const RunOptions& options) {
       }
       spdlog::info("{} subscriber(s) matched; starting", state_writer.matched_readers());
     }
-    // Real time (the machine file's `realtime:`): memory is locked here, and each
-    // sample thread takes its CPUs and priority before its first sample.
-    std::vector<std::string> axis_names;
-    for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
-    Realtime realtime(machine.realtime, axis_names);
-    if (!realtime.ok()) return 1;
     for (auto& loop : loops)
       if (loop->canopen) loop->canopen->start(machine.realtime);  // boot-up; no estimate yet (6503h position error)
     for (const auto& g : groups) {

@@ -160,7 +160,8 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
                   std::to_string(priority) + " (" + std::strerror(r.priority_error) +
                   "); it needs CAP_SYS_NICE or RLIMIT_RTPRIO >= " + std::to_string(priority) + " (now " +
                   limit_text(RLIMIT_RTPRIO, false) + (has_capability(kCapSysNice) ? ", CAP_SYS_NICE held" : ", no CAP_SYS_NICE") +
-                  "; the systemd unit grants both); they run at normal priority");
+                  "; the systemd unit grants both); they run at normal priority" +
+                  (config_.effective_dds_thread_priority() > 0 ? std::string(", and so do Fast DDS's threads") : ""));
         }
       } else {
         line += " SCHED_FIFO " + std::to_string(priority);
@@ -168,12 +169,44 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
     }
     applied.push_back(line);
   }
+  // Fast DDS's threads, below the sample threads: tried the same way.
+  // Never above sample threads that could not have their own priority.
+  const int dds_priority = config_.effective_dds_thread_priority();
+  if (dds_priority > 0 && !priority_usable_) dds_priority_usable_ = false;
+  if (dds_priority > 0 && priority_usable_) {
+    int rc = 0;
+    std::thread probe([&] { rc = set_fifo(dds_priority); });
+    probe.join();
+    if (rc != 0) {
+      dds_priority_usable_ = false;
+      problem("realtime.dds_thread_priority: cannot run Fast DDS's threads at SCHED_FIFO priority " +
+                std::to_string(dds_priority) + " (" + std::strerror(rc) + "); it needs CAP_SYS_NICE or RLIMIT_RTPRIO >= " +
+                std::to_string(dds_priority) + " (now " + limit_text(RLIMIT_RTPRIO, false) +
+                "); they run at normal priority");
+    } else {
+      applied.push_back("Fast DDS's threads SCHED_FIFO " + std::to_string(dds_priority));
+    }
+  }
   if (!ok_) return;
   std::string summary;
   for (const auto& a : applied) summary += (summary.empty() ? " " : "; ") + a;
   if (config_.any())
     spdlog::info("realtime:{}{}", summary.empty() ? std::string(" sample threads not pinned, normal priority") : summary,
                  locked ? "; memory locked" : "");
+}
+
+void Realtime::begin_dds_threads() {
+  const int priority = config_.effective_dds_thread_priority();
+  if (priority <= 0 || !dds_priority_usable_) return;
+  if (const int rc = set_fifo(priority))
+    spdlog::warn("realtime: Fast DDS's threads at normal priority: {}", std::strerror(rc));
+}
+
+void Realtime::end_dds_threads() {
+  if (config_.effective_dds_thread_priority() <= 0 || !dds_priority_usable_) return;
+  sched_param p{};
+  p.sched_priority = 0;
+  pthread_setschedparam(pthread_self(), SCHED_OTHER, &p);
 }
 
 void Realtime::enter_sample_thread(const std::string& axis, const std::string& thread_name) {

@@ -1,6 +1,10 @@
 // Real-time settings of `run`, from the machine file's `realtime:` section:
-// memory locked (mlockall) once for the process, and SCHED_FIFO priority and CPU
-// affinity for each sample thread (one per group of axes, realtime.sample_loop).
+// memory locked (mlockall) once for the process, SCHED_FIFO priority and CPU
+// affinity for each sample thread (one per group of axes, realtime.sample_loop),
+// and a SCHED_FIFO priority below the sample threads' for Fast DDS's own threads
+// (realtime.dds_thread_priority). Fast DDS 2.9 has no setting for its threads'
+// scheduling; they inherit the policy of the thread that creates the participant,
+// so `run` creates its DDS entities between begin_dds_threads() and end_dds_threads().
 //
 // Permissions: SCHED_FIFO needs CAP_SYS_NICE or RLIMIT_RTPRIO >= the priority;
 // locking all memory needs CAP_IPC_LOCK or an RLIMIT_MEMLOCK above the process'
@@ -35,10 +39,17 @@ class Realtime {
   /// first axis (they share CPUs and priority) and is named `thread_name` if not empty.
   void enter_sample_thread(const std::string& axis, const std::string& thread_name = std::string());
 
+  /// The calling thread takes Fast DDS's threads' priority (if any and permitted), so
+  /// that the threads Fast DDS starts from it inherit it ...
+  void begin_dds_threads();
+  /// ... and goes back to normal scheduling.
+  void end_dds_threads();
+
  private:
   config::RealtimeConfig config_;
   bool ok_ = true;
   bool priority_usable_ = true;
+  bool dds_priority_usable_ = true;
   std::vector<std::string> affinity_unusable_;  ///< axes whose CPUs cannot be used
   std::atomic<bool> late_warning_{false};
 };

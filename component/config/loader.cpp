@@ -1195,7 +1195,7 @@ class MachineLoader {
   }
 
   // ---- realtime section ----
-  /// `realtime: {sample_thread_priority, cpu_affinity, lock_memory, required, sample_loop}`.
+  /// `realtime: {sample_thread_priority, dds_thread_priority, cpu_affinity, lock_memory, required, sample_loop}`.
   /// The CPUs must exist on the machine that loads the file: a machine file
   /// describes the machine it runs on, and `check` there reports a wrong index.
   static void read_realtime(Map rt, MachineConfig& cfg) {
@@ -1204,6 +1204,16 @@ class MachineLoader {
              return (p >= 0 && p <= 99) ? std::string()
                                         : "must be in [0, 99] (SCHED_FIFO 1..99; 0 = normal scheduling), got " +
                                               std::to_string(p);
+           }));
+    rt.get("dds_thread_priority", c.dds_thread_priority, Check<int>([&c](const int& p) {
+             if (p < 0 || p > 99)
+               return "must be in [0, 99] (SCHED_FIFO 1..99; 0 = normal scheduling), got " + std::to_string(p);
+             if (p > 0 && p >= c.sample_thread_priority)
+               return std::string("must be below realtime.sample_thread_priority (") +
+                      std::to_string(c.sample_thread_priority) + ", " +
+                      (c.sample_thread_priority > 0 ? "" : "normal scheduling, ") + "got " + std::to_string(p) +
+                      "): Fast DDS's threads at or above the sample threads would delay them";
+             return std::string();
            }));
     rt.get("lock_memory", c.lock_memory);
     rt.get("required", c.required);

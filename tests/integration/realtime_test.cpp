@@ -196,6 +196,78 @@ TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
   EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
 }
 
+/// Every thread of `pid`: name, policy and real-time priority.
+struct Task {
+  std::string dir, comm;
+  int policy = -1, prio = -1;
+};
+std::vector<Task> tasks_of(pid_t pid) {
+  std::vector<Task> out;
+  std::error_code ec;
+  for (const auto& t : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    Task task;
+    task.dir = t.path().string();
+    task.comm = read_file(task.dir + "/comm");
+    while (!task.comm.empty() && task.comm.back() == '\n') task.comm.pop_back();
+    task_sched(task.dir, task.policy, task.prio);
+    out.push_back(task);
+  }
+  return out;
+}
+
+// Fast DDS's own threads (event, receive) take the writers' locks a sample thread's
+// write waits for: they run at a FIFO priority below the sample threads' (5 below when
+// not given), every other thread of the process at normal priority.
+TEST(Realtime, FastDdsThreadsRunBelowTheSampleThreads) {
+  ve::test::TempDir dir;
+  const std::string machine = write_machine(dir, "realtime:\n  sample_thread_priority: 50\n");
+  ve::test::ChildProcess run(run_args(machine), (dir.path / "run.log").string());
+  ASSERT_TRUE(run.started());
+  ASSERT_TRUE(ve::test::wait_until([&] { return run.log().find(" x=") != std::string::npos; }, 30s)) << run.log();
+  const std::string status_path = "/proc/" + std::to_string(run.pid()) + "/status";
+  rlimit rt{};
+  getrlimit(RLIMIT_RTPRIO, &rt);
+  if (!has_capability(status_path, kCapSysNice) && (rt.rlim_cur == RLIM_INFINITY ? false : rt.rlim_cur < 50))
+    GTEST_SKIP() << "no permission for SCHED_FIFO 50 here";
+  int at_50 = 0, at_45 = 0, other_fifo = 0;
+  std::string seen;
+  for (const auto& t : tasks_of(run.pid())) {
+    seen += t.comm + " " + std::to_string(t.policy) + "/" + std::to_string(t.prio) + "; ";
+    if (t.policy == SCHED_FIFO && t.prio == 50 && t.comm.rfind("ve-", 0) == 0)
+      ++at_50;
+    else if (t.policy == SCHED_FIFO && t.prio == 45 && t.comm.rfind("ve-", 0) != 0)
+      ++at_45;
+    else if (t.policy != SCHED_OTHER)
+      ++other_fifo;
+  }
+  EXPECT_EQ(at_50, 1) << "one sample thread for x and y: " << seen;
+  EXPECT_GE(at_45, 3) << "Fast DDS's event thread and its receive threads: " << seen;
+  EXPECT_EQ(other_fifo, 0) << seen;
+  int main_policy = -1, main_prio = -1;
+  task_sched("/proc/" + std::to_string(run.pid()) + "/task/" + std::to_string(run.pid()), main_policy, main_prio);
+  EXPECT_EQ(main_policy, SCHED_OTHER) << "the main thread is back at normal priority once the DDS entities exist";
+  EXPECT_NE(run.log().find("Fast DDS's threads SCHED_FIFO 45"), std::string::npos) << run.log();
+  std::printf("[ figures  ] threads: %s\n", seen.c_str());
+  run.signal(SIGTERM);
+  EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
+
+  // dds_thread_priority: 0 keeps them at normal priority.
+  ve::test::TempDir dir0;
+  const std::string machine0 = write_machine(dir0, "realtime:\n  sample_thread_priority: 50\n  dds_thread_priority: 0\n");
+  ve::test::ChildProcess run0(run_args(machine0), (dir0.path / "run.log").string());
+  ASSERT_TRUE(run0.started());
+  ASSERT_TRUE(ve::test::wait_until([&] { return run0.log().find(" x=") != std::string::npos; }, 30s)) << run0.log();
+  std::string seen0;
+  int fifo0 = 0;
+  for (const auto& t : tasks_of(run0.pid())) {
+    seen0 += t.comm + " " + std::to_string(t.policy) + "/" + std::to_string(t.prio) + "; ";
+    if (t.policy != SCHED_OTHER && t.comm.rfind("ve-", 0) != 0) ++fifo0;
+  }
+  EXPECT_EQ(fifo0, 0) << seen0;
+  run0.signal(SIGTERM);
+  EXPECT_EQ(run0.wait_exit(15s), 0) << run0.log();
+}
+
 TEST(Realtime, WithoutPermissionWarnsOncePerSettingAndPublishes) {
   ve::test::TempDir dir;
   const std::string machine = write_machine(dir, "realtime:\n  sample_thread_priority: 50\n  lock_memory: true\n");

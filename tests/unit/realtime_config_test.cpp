@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "config/loader.hpp"
 
@@ -129,6 +131,32 @@ TEST(RealtimeConfig, PriorityOutOfRange) {
   expect_error(r, path, 2, 27, "realtime.sample_thread_priority", "must be in [0, 99]");
   const auto neg = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: -1\n"));
   expect_error(neg, path, 2, 27, "realtime.sample_thread_priority", "got -1");
+}
+
+TEST(RealtimeConfig, DdsThreadsBelowTheSampleThreads) {
+  RtTempDir dir;
+  // Not given: 5 below the sample threads (at least 1), none without a sample priority.
+  for (const auto& [sample, expected] : std::vector<std::pair<int, int>>{{0, 0}, {1, 0}, {2, 1}, {6, 1}, {50, 45}}) {
+    const auto r = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: " + std::to_string(sample) + "\n"));
+    ASSERT_TRUE(r.ok()) << to_string(r.errors);
+    EXPECT_EQ(r.config.realtime.dds_thread_priority, -1);
+    EXPECT_EQ(r.config.realtime.effective_dds_thread_priority(), expected) << "sample threads at " << sample;
+  }
+  const auto given = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: 80\n  dds_thread_priority: 60\n"));
+  ASSERT_TRUE(given.ok()) << to_string(given.errors);
+  EXPECT_EQ(given.config.realtime.effective_dds_thread_priority(), 60);
+  const auto off = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: 80\n  dds_thread_priority: 0\n"));
+  ASSERT_TRUE(off.ok()) << to_string(off.errors);
+  EXPECT_EQ(off.config.realtime.effective_dds_thread_priority(), 0);
+
+  const auto path = dir.machine("realtime:\n  sample_thread_priority: 50\n  dds_thread_priority: 50\n");
+  const auto same = load_machine_file(path);
+  ASSERT_EQ(same.errors.size(), 1u) << to_string(same.errors);
+  expect_error(same, path, 3, 24, "realtime.dds_thread_priority", "must be below realtime.sample_thread_priority (50");
+  const auto alone = load_machine_file(dir.machine("realtime:\n  dds_thread_priority: 10\n"));
+  expect_error(alone, path, 2, 24, "realtime.dds_thread_priority", "normal scheduling, got 10");
+  const auto range = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: 50\n  dds_thread_priority: -2\n"));
+  expect_error(range, path, 3, 24, "realtime.dds_thread_priority", "must be in [0, 99]");
 }
 
 TEST(RealtimeConfig, WrongTypes) {
