@@ -2,8 +2,11 @@
 // Sources push timestamped samples; the core never pulls from hardware itself.
 #pragma once
 
+#include <pthread.h>
+
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "core/sample.hpp"
 
@@ -58,6 +61,11 @@ class SensorSource {
 
   /// Makes a blocked read() return ReadStatus::stopped. Safe from another thread.
   virtual void stop() {}
+
+  /// Threads of the source's own that read() waits for (SocketCAN's receive thread):
+  /// part of the sample path, so `run` gives them the axis' sample thread's real-time
+  /// settings. Empty: read() waits for nothing but the clock or its caller.
+  virtual std::vector<pthread_t> helper_threads() { return {}; }
 
   virtual std::string describe() const = 0;
   virtual std::string last_error() const { return {}; }

@@ -588,6 +588,9 @@ int run_command(const RunOptions& options) {
   for (const auto& loop : loops) axis_names.push_back(loop->setup.config.name);
   Realtime realtime(machine.realtime, axis_names);
   if (!realtime.ok()) return 1;
+  for (const auto& loop : loops)
+    for (const pthread_t t : loop->setup.source->helper_threads())
+      realtime.adopt_source_thread(t, loop->setup.config.name);
   struct DdsThreadsScope {
     Realtime& rt;
     bool open = true;

@@ -195,6 +195,33 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
                  locked ? "; memory locked" : "");
 }
 
+void Realtime::adopt_source_thread(pthread_t thread, const std::string& axis) {
+  const std::string name = ("ve-rx-" + axis).substr(0, 15);
+  pthread_setname_np(thread, name.c_str());
+  const std::vector<int>& cpus = config_.cpus_for(axis);
+  int ea = 0;
+  if (!cpus.empty() &&
+      std::find(affinity_unusable_.begin(), affinity_unusable_.end(), axis) == affinity_unusable_.end()) {
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    for (const int c : cpus)
+      if (c >= 0 && c < CPU_SETSIZE) CPU_SET(c, &set);
+    ea = pthread_setaffinity_np(thread, sizeof set, &set);
+  }
+  int ep = 0;
+  if (config_.sample_thread_priority > 0 && priority_usable_) {
+    sched_param p{};
+    p.sched_priority = config_.sample_thread_priority;
+    ep = pthread_setschedparam(thread, SCHED_FIFO, &p);
+  }
+  if (ea != 0 || ep != 0)
+    spdlog::warn("realtime: axis '{}': its source's thread {}: {}{}", axis, name,
+                 ea ? std::string("cpu_affinity failed: ") + std::strerror(ea) + " " : "",
+                 ep ? std::string("sample_thread_priority failed: ") + std::strerror(ep) : "");
+  else if (config_.sample_thread_priority > 0 || !cpus.empty())
+    spdlog::info("realtime: axis '{}': its source's thread {} with the sample thread's settings", axis, name);
+}
+
 void Realtime::begin_dds_threads() {
   const int priority = config_.effective_dds_thread_priority();
   if (priority <= 0 || !dds_priority_usable_) return;

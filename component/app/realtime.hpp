@@ -14,6 +14,8 @@
 // thread starts.
 #pragma once
 
+#include <pthread.h>
+
 #include <atomic>
 #include <string>
 #include <vector>
@@ -38,6 +40,11 @@ class Realtime {
   /// A thread that steps several axes (realtime.sample_loop: shared) enters as its
   /// first axis (they share CPUs and priority) and is named `thread_name` if not empty.
   void enter_sample_thread(const std::string& axis, const std::string& thread_name = std::string());
+
+  /// A thread of an axis' source that its sample thread waits for (SocketCAN's receive
+  /// thread, drivers::SensorSource::helper_threads): named "ve-rx-AXIS" and given the
+  /// axis' sample thread's CPUs and priority, from the thread that calls this.
+  void adopt_source_thread(pthread_t thread, const std::string& axis);
 
   /// The calling thread takes Fast DDS's threads' priority (if any and permitted), so
   /// that the threads Fast DDS starts from it inherit it ...

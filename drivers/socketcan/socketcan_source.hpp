@@ -105,6 +105,11 @@ class SocketCanSource final : public drivers::SensorSource {
   /// One line with every counter and the dropped frames by reason (foreign ones with
   /// the last foreign id), for logs.
   std::string stats() const override;
+  /// The receive thread, which read() waits for.
+  std::vector<pthread_t> helper_threads() override {
+    if (!thread_.joinable()) return {};
+    return {thread_.native_handle()};
+  }
 
   /// The receive thread's step for one frame the socket delivered: `can_id` with the
   /// kernel's CAN_EFF/RTR/ERR_FLAG bits, as in struct can_frame. Public so that the

@@ -8,6 +8,7 @@
 // why, only when qemu or the kernel package is unavailable.
 #include <gtest/gtest.h>
 #include <linux/can.h>
+#include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -467,6 +468,66 @@ double line_fit_rms(const std::vector<std::pair<double, double>>& tx) {
 /// (socketcan driver, estimator, DDS writer) -> a DDS subscriber in this process.
 /// The published positions at constant velocity are as accurate as the same
 /// estimator fed by the simulator driver directly.
+namespace {
+/// "comm policy/priority" of every thread of `pid` (proc(5) stat fields 40 and 41).
+std::vector<std::string> thread_scheduling(pid_t pid) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& t : std::filesystem::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    std::string comm = slurp(t.path().string() + "/comm");
+    while (!comm.empty() && comm.back() == '\n') comm.pop_back();
+    const std::string stat = slurp(t.path().string() + "/stat");
+    std::istringstream in(stat.substr(stat.rfind(')') + 2));
+    std::string f, prio, policy;
+    for (int i = 3; i <= 41 && (in >> f); ++i) {
+      if (i == 40) prio = f;
+      if (i == 41) policy = f;
+    }
+    out.push_back(comm + " " + policy + "/" + prio);
+  }
+  return out;
+}
+}  // namespace
+
+// SocketCAN's receive thread is part of the sample path (the sample thread waits for
+// its frames): `run` gives it the sample thread's real-time settings, and Fast DDS's
+// threads run below both.
+TEST(SocketCanGuest, ReceiveThreadRunsWithTheSampleThreadsSettings) {
+  GUEST_ONLY();
+  std::string yaml = slurp(kSrc + "/config/machines/can-classic.yaml");
+  for (std::size_t at = 0; (at = yaml.find("../", at)) != std::string::npos;) {
+    yaml.replace(at, 3, kSrc + "/config/machines/../");
+    at += kSrc.size() + 20;
+  }
+  const auto axes = yaml.find("\naxes:");
+  ASSERT_NE(axes, std::string::npos);
+  yaml.insert(axes + 1, "realtime:\n  sample_thread_priority: 30\n");
+  const std::string machine = "realtime-can-classic.yaml";
+  std::ofstream(machine) << yaml;
+  const int domain = ve::test::dds_domain(0);  // the guest tests run one after the other
+  const pid_t run = spawn({kBin, "run", "--config", machine, "--domain", std::to_string(domain), "--duration", "20"});
+  ASSERT_GT(run, 0);
+  std::vector<std::string> threads;
+  auto has = [&](const std::string& entry) { return std::find(threads.begin(), threads.end(), entry) != threads.end(); };
+  for (int i = 0; i < 1500; ++i) {
+    threads = thread_scheduling(run);
+    if (has("ve-rx-x 1/30") && has("ve-x 1/30")) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  kill(run, SIGTERM);
+  EXPECT_EQ(wait_exit(run), 0);
+  std::string seen;
+  int dds_at_25 = 0;
+  for (const auto& t : threads) {
+    seen += t + "; ";
+    if (t == "virtual-encoder 1/25") ++dds_at_25;
+  }
+  EXPECT_TRUE(has("ve-rx-x 1/30")) << "the receive thread at SCHED_FIFO 30: " << seen;
+  EXPECT_TRUE(has("ve-x 1/30")) << seen;
+  EXPECT_GE(dds_at_25, 3) << "Fast DDS's threads 5 below: " << seen;
+  std::printf("threads of run: %s\n", seen.c_str());
+}
+
 TEST(SocketCanGuest, EmulatorToDdsChainAccuracy) {
   GUEST_ONLY();
   // Reference: the simulator driver straight into the pipeline, same motion.
