@@ -25,7 +25,7 @@
 // Markdown to tests/bench/results/dds_latency.md.
 //
 //   bench_dds_latency [--rounds N] [--round-s S] [--rate-s S] [--max-s S] [--cpu-s S]
-//                     [--rt-priority P] [--pin] [--domain D] [--out FILE | --no-write]
+//                     [--rt-priority P] [--dds-below N] [--pin] [--domain D] [--out FILE | --no-write]
 // The subscriber side is this program again:
 //   bench_dds_latency --sub product|product-to-bare|product-nodl|bare --transport shm|udp|builtin --profiles FILE ...
 #include <dirent.h>
@@ -220,6 +220,10 @@ class PinScope {
   bool active_ = false;
   cpu_set_t old_{};
 };
+
+/// --dds-below N: with --rt-priority P, the publisher's Fast DDS threads run at P - N
+/// (`run`'s realtime.dds_thread_priority; its default is 5 below).
+int g_dds_below = 5;
 
 /// --pin: publisher process on CPU 0, subscriber process on CPU 1 (as a deployment
 /// keeps the encoder and its consumers on CPUs of their own).
@@ -715,8 +719,10 @@ PubResult run_pair(const std::string& kind, const std::string& transport, int do
     res.error = "cannot spawn the subscriber";
     return res;
   }
-  const PinScope pin(g_pin ? 0 : -1);         // before the participant: its threads inherit it
-  const RealtimeScope realtime(rt_priority);  // likewise
+  const PinScope pin(g_pin ? 0 : -1);  // before the participant: its threads inherit it
+  // Likewise the priority, as `run` gives them (realtime.dds_thread_priority's default: 5
+  // below the sample threads); the publishing thread then takes the sample threads' own.
+  const RealtimeScope dds_threads(rt_priority > g_dds_below ? rt_priority - g_dds_below : std::min(rt_priority, 1));
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateWriter> writer;
   std::unique_ptr<Bare> bare;
@@ -758,6 +764,7 @@ PubResult run_pair(const std::string& kind, const std::string& transport, int do
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const RealtimeScope realtime(rt_priority);  // the publishing thread, as a sample thread
 
   ve::dds::EncoderState s;
   const std::int64_t period = rate_hz > 0 ? static_cast<std::int64_t>(std::llround(1e9 / rate_hz)) : 0;
@@ -1312,7 +1319,8 @@ int orchestrator_main(const Options& opt, const std::string& command) {
             "publisher writes the samples due in each 1 ms tick back to back. The target is judged on the run with\n"
             "normal scheduling. `--rt-priority P` adds one with SCHED_FIFO P for the publishing thread and the\n"
             "subscriber process (Fast DDS's threads included), as `realtime.sample_thread_priority` does for the\n"
-            "service's sample threads.\n\n"
+            "service's sample threads; the publisher's Fast DDS threads run `--dds-below` (default 5) below, as\n"
+            "`run` runs them (`realtime.dds_thread_priority`).\n\n"
             "A write gap is the time between two writes of the publishing thread, measured by that thread. Fast DDS\n"
             "2.9 arms the writer's deadline timer for the whole milliseconds left after each write, so the 5 ms\n"
             "offered deadline is reported after a silence of a little over 4 ms. The product counts whole 5 ms\n"
@@ -1426,6 +1434,7 @@ int main(int argc, char** argv) {
     else if (a == "--profiles") profiles = next();
     else if (a == "--warmup") warmup = std::strtoull(next().c_str(), nullptr, 10);
     else if (a == "--rt-priority") opt.rt_priority = std::atoi(next().c_str());
+    else if (a == "--dds-below") g_dds_below = std::max(0, std::atoi(next().c_str()));
     else if (a == "--pin") g_pin = true;
     else if (a == "--pin-cpu") g_child_cpu = std::atoi(next().c_str());
     else if (a == "--domain") opt.domain = std::atoi(next().c_str());
