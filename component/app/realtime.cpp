@@ -161,7 +161,7 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
                   "); it needs CAP_SYS_NICE or RLIMIT_RTPRIO >= " + std::to_string(priority) + " (now " +
                   limit_text(RLIMIT_RTPRIO, false) + (has_capability(kCapSysNice) ? ", CAP_SYS_NICE held" : ", no CAP_SYS_NICE") +
                   "; the systemd unit grants both); they run at normal priority" +
-                  (config_.effective_dds_thread_priority() > 0 ? std::string(", and so do Fast DDS's threads") : ""));
+                  (config_.dds_thread_priority > 0 ? std::string(", and so do Fast DDS's threads") : ""));
         }
       } else {
         line += " SCHED_FIFO " + std::to_string(priority);
@@ -171,7 +171,7 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
   }
   // Fast DDS's threads, below the sample threads: tried the same way.
   // Never above sample threads that could not have their own priority.
-  const int dds_priority = config_.effective_dds_thread_priority();
+  const int dds_priority = config_.dds_thread_priority;
   if (dds_priority > 0 && !priority_usable_) dds_priority_usable_ = false;
   if (dds_priority > 0 && priority_usable_) {
     int rc = 0;
@@ -223,14 +223,14 @@ void Realtime::adopt_source_thread(pthread_t thread, const std::string& axis) {
 }
 
 void Realtime::begin_dds_threads() {
-  const int priority = config_.effective_dds_thread_priority();
+  const int priority = config_.dds_thread_priority;
   if (priority <= 0 || !dds_priority_usable_) return;
   if (const int rc = set_fifo(priority))
     spdlog::warn("realtime: Fast DDS's threads at normal priority: {}", std::strerror(rc));
 }
 
 void Realtime::end_dds_threads() {
-  if (config_.effective_dds_thread_priority() <= 0 || !dds_priority_usable_) return;
+  if (config_.dds_thread_priority <= 0 || !dds_priority_usable_) return;
   sched_param p{};
   p.sched_priority = 0;
   pthread_setschedparam(pthread_self(), SCHED_OTHER, &p);

@@ -2,7 +2,6 @@
 // defaults in class. Only loader.cpp knows YAML.
 #pragma once
 
-#include <algorithm>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -107,14 +106,15 @@ struct DdsConfig {
 /// and whether the process' memory is locked. All off by default.
 struct RealtimeConfig {
   int sample_thread_priority = 0;  ///< SCHED_FIFO priority 1..99 of every sample thread; 0 = normal scheduling
-  /// SCHED_FIFO priority of Fast DDS's own threads in `run` (its event thread, which
-  /// re-arms the offered deadline, and its receive threads), which take the writers'
-  /// and the participant's locks a sample thread's write waits for: at normal
+  /// SCHED_FIFO priority 1..99 of Fast DDS's own threads in `run` (its event thread,
+  /// which re-arms the offered deadline, and its receive threads), which take the
+  /// writers' and the participant's locks a sample thread's write waits for: at normal
   /// priority they can hold a sample thread at FIFO priority for as long as the host
-  /// keeps them off a CPU (priority inversion). -1 (not given): 5 below the sample
-  /// threads (at least 1) when those have a priority of 2 or more, else normal
-  /// scheduling; 0: normal scheduling. Must be below sample_thread_priority.
-  int dds_thread_priority = -1;
+  /// keeps them off a CPU (priority inversion); at FIFO priority they take CPU time
+  /// from everything at normal priority (a Discovery Server, the kernel's deferred
+  /// network work) on a busy host. 0 (the default): normal scheduling. Must be below
+  /// sample_thread_priority (docs/scale.md has the measurements).
+  int dds_thread_priority = 0;
   /// CPUs every sample thread may run on (`cpu_affinity: [2, 3]`); empty = not pinned.
   std::vector<int> cpu_affinity;
   /// Per-axis CPUs (`cpu_affinity: {x: [1], y: [2]}`), by axis name; an axis not
@@ -138,12 +138,6 @@ struct RealtimeConfig {
     for (const auto& [name, cpus] : axis_cpu_affinity)
       if (name == axis) return cpus;
     return none;
-  }
-  /// The priority Fast DDS's threads get: dds_thread_priority, or derived from the
-  /// sample threads' when not given; 0 = normal scheduling.
-  int effective_dds_thread_priority() const {
-    if (dds_thread_priority >= 0) return dds_thread_priority;
-    return sample_thread_priority >= 2 ? std::max(1, sample_thread_priority - 5) : 0;
   }
   bool any() const { return sample_thread_priority > 0 || dds_thread_priority > 0 || !cpu_affinity.empty() || !axis_cpu_affinity.empty() || lock_memory; }
 };

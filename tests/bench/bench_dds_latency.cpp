@@ -222,8 +222,9 @@ class PinScope {
 };
 
 /// --dds-below N: with --rt-priority P, the publisher's Fast DDS threads run at P - N
-/// (`run`'s realtime.dds_thread_priority; its default is 5 below).
-int g_dds_below = 5;
+/// (`run`'s realtime.dds_thread_priority); -1 (the default): normal scheduling, as `run`
+/// runs them unless told.
+int g_dds_below = -1;
 
 /// --pin: publisher process on CPU 0, subscriber process on CPU 1 (as a deployment
 /// keeps the encoder and its consumers on CPUs of their own).
@@ -722,7 +723,7 @@ PubResult run_pair(const std::string& kind, const std::string& transport, int do
   const PinScope pin(g_pin ? 0 : -1);  // before the participant: its threads inherit it
   // Likewise the priority, as `run` gives them (realtime.dds_thread_priority's default: 5
   // below the sample threads); the publishing thread then takes the sample threads' own.
-  const RealtimeScope dds_threads(rt_priority > g_dds_below ? rt_priority - g_dds_below : std::min(rt_priority, 1));
+  const RealtimeScope dds_threads(g_dds_below < 0 ? 0 : rt_priority > g_dds_below ? rt_priority - g_dds_below : std::min(rt_priority, 1));
   std::unique_ptr<ve::app::DdsContext> ctx;
   std::unique_ptr<ve::app::StateWriter> writer;
   std::unique_ptr<Bare> bare;
@@ -1319,8 +1320,8 @@ int orchestrator_main(const Options& opt, const std::string& command) {
             "publisher writes the samples due in each 1 ms tick back to back. The target is judged on the run with\n"
             "normal scheduling. `--rt-priority P` adds one with SCHED_FIFO P for the publishing thread and the\n"
             "subscriber process (Fast DDS's threads included), as `realtime.sample_thread_priority` does for the\n"
-            "service's sample threads; the publisher's Fast DDS threads run `--dds-below` (default 5) below, as\n"
-            "`run` runs them (`realtime.dds_thread_priority`).\n\n"
+            "service's sample threads; the publisher's Fast DDS threads run at normal priority, as `run` runs\n"
+            "them unless `realtime.dds_thread_priority` is set (`--dds-below N`: N below the publishing thread).\n\n"
             "A write gap is the time between two writes of the publishing thread, measured by that thread. Fast DDS\n"
             "2.9 arms the writer's deadline timer for the whole milliseconds left after each write, so the 5 ms\n"
             "offered deadline is reported after a silence of a little over 4 ms. The product counts whole 5 ms\n"
@@ -1434,7 +1435,7 @@ int main(int argc, char** argv) {
     else if (a == "--profiles") profiles = next();
     else if (a == "--warmup") warmup = std::strtoull(next().c_str(), nullptr, 10);
     else if (a == "--rt-priority") opt.rt_priority = std::atoi(next().c_str());
-    else if (a == "--dds-below") g_dds_below = std::max(0, std::atoi(next().c_str()));
+    else if (a == "--dds-below") g_dds_below = std::max(-1, std::atoi(next().c_str()));
     else if (a == "--pin") g_pin = true;
     else if (a == "--pin-cpu") g_child_cpu = std::atoi(next().c_str());
     else if (a == "--domain") opt.domain = std::atoi(next().c_str());

@@ -216,11 +216,12 @@ std::vector<Task> tasks_of(pid_t pid) {
 }
 
 // Fast DDS's own threads (event, receive) take the writers' locks a sample thread's
-// write waits for: they run at a FIFO priority below the sample threads' (5 below when
-// not given), every other thread of the process at normal priority.
+// write waits for: with realtime.dds_thread_priority they run at that FIFO priority,
+// below the sample threads', every other thread of the process at normal priority.
 TEST(Realtime, FastDdsThreadsRunBelowTheSampleThreads) {
   ve::test::TempDir dir;
-  const std::string machine = write_machine(dir, "realtime:\n  sample_thread_priority: 50\n");
+  const std::string machine =
+      write_machine(dir, "realtime:\n  sample_thread_priority: 50\n  dds_thread_priority: 45\n");
   ve::test::ChildProcess run(run_args(machine), (dir.path / "run.log").string());
   ASSERT_TRUE(run.started());
   ASSERT_TRUE(ve::test::wait_until([&] { return run.log().find(" x=") != std::string::npos; }, 30s)) << run.log();
@@ -251,9 +252,9 @@ TEST(Realtime, FastDdsThreadsRunBelowTheSampleThreads) {
   run.signal(SIGTERM);
   EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
 
-  // dds_thread_priority: 0 keeps them at normal priority.
+  // Not given (0): they stay at normal priority.
   ve::test::TempDir dir0;
-  const std::string machine0 = write_machine(dir0, "realtime:\n  sample_thread_priority: 50\n  dds_thread_priority: 0\n");
+  const std::string machine0 = write_machine(dir0, "realtime:\n  sample_thread_priority: 50\n");
   ve::test::ChildProcess run0(run_args(machine0), (dir0.path / "run.log").string());
   ASSERT_TRUE(run0.started());
   ASSERT_TRUE(ve::test::wait_until([&] { return run0.log().find(" x=") != std::string::npos; }, 30s)) << run0.log();

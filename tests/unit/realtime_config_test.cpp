@@ -135,19 +135,16 @@ TEST(RealtimeConfig, PriorityOutOfRange) {
 
 TEST(RealtimeConfig, DdsThreadsBelowTheSampleThreads) {
   RtTempDir dir;
-  // Not given: 5 below the sample threads (at least 1), none without a sample priority.
-  for (const auto& [sample, expected] : std::vector<std::pair<int, int>>{{0, 0}, {1, 0}, {2, 1}, {6, 1}, {50, 45}}) {
+  // Not given: normal scheduling, whatever the sample threads' priority.
+  for (const int sample : {0, 1, 50}) {
     const auto r = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: " + std::to_string(sample) + "\n"));
     ASSERT_TRUE(r.ok()) << to_string(r.errors);
-    EXPECT_EQ(r.config.realtime.dds_thread_priority, -1);
-    EXPECT_EQ(r.config.realtime.effective_dds_thread_priority(), expected) << "sample threads at " << sample;
+    EXPECT_EQ(r.config.realtime.dds_thread_priority, 0) << "sample threads at " << sample;
   }
   const auto given = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: 80\n  dds_thread_priority: 60\n"));
   ASSERT_TRUE(given.ok()) << to_string(given.errors);
-  EXPECT_EQ(given.config.realtime.effective_dds_thread_priority(), 60);
-  const auto off = load_machine_file(dir.machine("realtime:\n  sample_thread_priority: 80\n  dds_thread_priority: 0\n"));
-  ASSERT_TRUE(off.ok()) << to_string(off.errors);
-  EXPECT_EQ(off.config.realtime.effective_dds_thread_priority(), 0);
+  EXPECT_EQ(given.config.realtime.dds_thread_priority, 60);
+  EXPECT_TRUE(given.config.realtime.any());
 
   const auto path = dir.machine("realtime:\n  sample_thread_priority: 50\n  dds_thread_priority: 50\n");
   const auto same = load_machine_file(path);
