@@ -185,7 +185,8 @@ const char* const kMonitorTableLegend =
     "                HOMED the position is absolute on the travel; DEGRADED fewer sensors than configured;\n"
     "                FAULT a sensor is flagged; OUT_OF_TRAVEL outside the calibrated travel;\n"
     "                HALL_REJ this sample's Hall position was rejected (not used); ACC_FAULT accelerometer\n"
-    "                missing or saturated; H0..H7 that Hall sensor is flagged faulty\n";
+    "                missing or saturated; H0..H7 that Hall sensor is flagged faulty; 'waiting' (and '-' for\n"
+    "                position, vel, sx and sv) until the axis' first sample arrives\n";
 
 const char* const kMonitorCsvLegend =
     "--csv columns (one row per sample received, after a header row):\n"

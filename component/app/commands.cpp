@@ -1153,6 +1153,14 @@ int monitor_command(const MonitorOptions& options) {
           std::snprintf(bias, sizeof bias, "%+.4f", a.diagnostics.accel_bias_mps2());
           std::snprintf(step, sizeof step, "%.0f", a.diagnostics.step_time_max_us());
         }
+        if (a.received == 0) {
+          // Described (or its diagnostics seen) but no state yet: nothing to show, and no
+          // zeros that would read like a position at 0.
+          std::printf("%-10s %14s %12s %9s %10s %8.0f %13s %8llu %6s %10s %9s  %s\n", name.c_str(), "-", "-", "-", "-",
+                      a.rate_hz, misses, static_cast<unsigned long long>(a.sequence_gaps), innov, bias, step,
+                      "waiting");
+          continue;
+        }
         std::printf("%-10s %14.4f %12.3f %9.3f %10.4f %8.0f %13s %8llu %6s %10s %9s  %s\n", name.c_str(),
                     a.last.position_m() * 1e3, a.last.velocity_mps() * 1e3, a.last.position_std_m() * 1e6,
                     a.last.velocity_std_mps() * 1e3, a.rate_hz, misses,
