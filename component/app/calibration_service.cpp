@@ -1,7 +1,5 @@
 #include "calibration_service.hpp"
 
-#include <pthread.h>
-#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <time.h>
@@ -18,6 +16,7 @@
 #include "config/calibration_file.hpp"
 #include "core/identification.hpp"
 #include "dds_io.hpp"
+#include "realtime.hpp"
 #include "reports.hpp"
 #include "sim/calibration_run.hpp"
 
@@ -154,9 +153,7 @@ void CalibrationService::work(Job job) {
   // Below the axis threads: on a small machine the calibration takes the idle CPU only.
   // This thread is started from a Fast DDS receive thread (the command's callback),
   // whose real-time priority (realtime.dds_thread_priority) it would otherwise inherit.
-  sched_param normal{};
-  normal.sched_priority = 0;
-  pthread_setschedparam(pthread_self(), SCHED_OTHER, &normal);
+  set_normal_scheduling();
   setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
   const config::AxisConfig& axis = job.axis;
   const std::uint32_t id = axis.id;

@@ -48,24 +48,24 @@ std::vector<int> cpus_of(const cpu_set_t& set) {
   return cpus;
 }
 
-/// Sets the calling thread's affinity; 0 or an errno. `got` is what the kernel kept.
-int set_affinity(const std::vector<int>& cpus, std::vector<int>& got) {
+/// Sets a thread's affinity; 0 or an errno. `got` is what the kernel kept.
+int set_affinity(pthread_t thread, const std::vector<int>& cpus, std::vector<int>& got) {
   cpu_set_t set;
   CPU_ZERO(&set);
   for (const int c : cpus)
     if (c >= 0 && c < CPU_SETSIZE) CPU_SET(c, &set);
-  const int rc = pthread_setaffinity_np(pthread_self(), sizeof set, &set);
+  const int rc = pthread_setaffinity_np(thread, sizeof set, &set);
   if (rc != 0) return rc;
   cpu_set_t now;
   CPU_ZERO(&now);
-  if (pthread_getaffinity_np(pthread_self(), sizeof now, &now) == 0) got = cpus_of(now);
+  if (pthread_getaffinity_np(thread, sizeof now, &now) == 0) got = cpus_of(now);
   return 0;
 }
 
-int set_fifo(int priority) {
+int set_fifo(pthread_t thread, int priority) {
   sched_param p{};
   p.sched_priority = priority;
-  return pthread_setschedparam(pthread_self(), SCHED_FIFO, &p);
+  return pthread_setschedparam(thread, SCHED_FIFO, &p);
 }
 
 struct ProbeResult {
@@ -129,8 +129,8 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
     if (cpus.empty() && priority <= 0) continue;
     ProbeResult r;
     std::thread probe([&] {
-      if (!cpus.empty()) r.affinity_error = set_affinity(cpus, r.affinity_got);
-      if (priority > 0) r.priority_error = set_fifo(priority);
+      if (!cpus.empty()) r.affinity_error = set_affinity(pthread_self(), cpus, r.affinity_got);
+      if (priority > 0) r.priority_error = set_fifo(pthread_self(), priority);
     });
     probe.join();
     std::string line = "axis '" + axis + "':";
@@ -175,7 +175,7 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
   if (dds_priority > 0 && !priority_usable_) dds_priority_usable_ = false;
   if (dds_priority > 0 && priority_usable_) {
     int rc = 0;
-    std::thread probe([&] { rc = set_fifo(dds_priority); });
+    std::thread probe([&] { rc = set_fifo(pthread_self(), dds_priority); });
     probe.join();
     if (rc != 0) {
       dds_priority_usable_ = false;
@@ -195,42 +195,41 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
                  locked ? "; memory locked" : "");
 }
 
-void Realtime::adopt_source_thread(pthread_t thread, const std::string& axis) {
-  const std::string name = ("ve-rx-" + axis).substr(0, 15);
+std::string Realtime::apply_axis_settings(pthread_t thread, const std::string& axis, const std::string& name) {
   pthread_setname_np(thread, name.c_str());
   const std::vector<int>& cpus = config_.cpus_for(axis);
-  int ea = 0;
-  if (!cpus.empty() &&
-      std::find(affinity_unusable_.begin(), affinity_unusable_.end(), axis) == affinity_unusable_.end()) {
-    cpu_set_t set;
-    CPU_ZERO(&set);
-    for (const int c : cpus)
-      if (c >= 0 && c < CPU_SETSIZE) CPU_SET(c, &set);
-    ea = pthread_setaffinity_np(thread, sizeof set, &set);
-  }
-  int ep = 0;
-  if (config_.sample_thread_priority > 0 && priority_usable_) {
-    sched_param p{};
-    p.sched_priority = config_.sample_thread_priority;
-    ep = pthread_setschedparam(thread, SCHED_FIFO, &p);
-  }
-  if (ea != 0 || ep != 0)
-    spdlog::warn("realtime: axis '{}': its source's thread {}: {}{}", axis, name,
-                 ea ? std::string("cpu_affinity failed: ") + std::strerror(ea) + " " : "",
-                 ep ? std::string("sample_thread_priority failed: ") + std::strerror(ep) : "");
-  else if (config_.sample_thread_priority > 0 || !cpus.empty())
+  const bool affinity = !cpus.empty() &&
+                        std::find(affinity_unusable_.begin(), affinity_unusable_.end(), axis) == affinity_unusable_.end();
+  std::vector<int> got;
+  const int ea = affinity ? set_affinity(thread, cpus, got) : 0;
+  const int ep =
+      (config_.sample_thread_priority > 0 && priority_usable_) ? set_fifo(thread, config_.sample_thread_priority) : 0;
+  return std::string(ea ? std::string("cpu_affinity failed: ") + std::strerror(ea) + " " : "") +
+         (ep ? std::string("sample_thread_priority failed: ") + std::strerror(ep) : "");
+}
+
+void Realtime::adopt_source_thread(pthread_t thread, const std::string& axis) {
+  const std::string name = ("ve-rx-" + axis).substr(0, 15);
+  const std::string failed = apply_axis_settings(thread, axis, name);
+  if (!failed.empty())
+    spdlog::warn("realtime: axis '{}': its source's thread {}: {}", axis, name, failed);
+  else if (config_.sample_thread_priority > 0 || !config_.cpus_for(axis).empty())
     spdlog::info("realtime: axis '{}': its source's thread {} with the sample thread's settings", axis, name);
 }
 
 void Realtime::begin_dds_threads() {
   const int priority = config_.dds_thread_priority;
   if (priority <= 0 || !dds_priority_usable_) return;
-  if (const int rc = set_fifo(priority))
+  if (const int rc = set_fifo(pthread_self(), priority))
     spdlog::warn("realtime: Fast DDS's threads at normal priority: {}", std::strerror(rc));
 }
 
 void Realtime::end_dds_threads() {
   if (config_.dds_thread_priority <= 0 || !dds_priority_usable_) return;
+  set_normal_scheduling();
+}
+
+void set_normal_scheduling() {
   sched_param p{};
   p.sched_priority = 0;
   pthread_setschedparam(pthread_self(), SCHED_OTHER, &p);
@@ -238,16 +237,8 @@ void Realtime::end_dds_threads() {
 
 void Realtime::enter_sample_thread(const std::string& axis, const std::string& thread_name) {
   const std::string name = (thread_name.empty() ? "ve-" + axis : thread_name).substr(0, 15);
-  pthread_setname_np(pthread_self(), name.c_str());
-  const std::vector<int>& cpus = config_.cpus_for(axis);
-  const bool affinity = !cpus.empty() &&
-                        std::find(affinity_unusable_.begin(), affinity_unusable_.end(), axis) == affinity_unusable_.end();
-  std::vector<int> got;
-  const int ea = affinity ? set_affinity(cpus, got) : 0;
-  const int ep = (config_.sample_thread_priority > 0 && priority_usable_) ? set_fifo(config_.sample_thread_priority) : 0;
-  if ((ea != 0 || ep != 0) && !late_warning_.exchange(true))
-    spdlog::warn("realtime: axis '{}': {}{}", axis, ea ? std::string("cpu_affinity failed: ") + std::strerror(ea) + " " : "",
-                 ep ? std::string("sample_thread_priority failed: ") + std::strerror(ep) : "");
+  const std::string failed = apply_axis_settings(pthread_self(), axis, name);
+  if (!failed.empty() && !late_warning_.exchange(true)) spdlog::warn("realtime: axis '{}': {}", axis, failed);
 }
 
 }  // namespace ve::app

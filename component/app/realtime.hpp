@@ -53,6 +53,10 @@ class Realtime {
   void end_dds_threads();
 
  private:
+  /// Names `thread` and gives it `axis`' CPUs and priority (what the probe allowed);
+  /// "" or what failed, for the log.
+  std::string apply_axis_settings(pthread_t thread, const std::string& axis, const std::string& name);
+
   config::RealtimeConfig config_;
   bool ok_ = true;
   bool priority_usable_ = true;
@@ -60,6 +64,10 @@ class Realtime {
   std::vector<std::string> affinity_unusable_;  ///< axes whose CPUs cannot be used
   std::atomic<bool> late_warning_{false};
 };
+
+/// The calling thread back to normal scheduling (SCHED_OTHER), e.g. a worker started
+/// from a thread at a real-time priority, which it would otherwise inherit.
+void set_normal_scheduling();
 
 /// "0-2,5": a CPU list in the kernel's Cpus_allowed_list form.
 std::string format_cpu_list(const std::vector<int>& cpus);

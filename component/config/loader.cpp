@@ -1200,14 +1200,13 @@ class MachineLoader {
   /// describes the machine it runs on, and `check` there reports a wrong index.
   static void read_realtime(Map rt, MachineConfig& cfg) {
     RealtimeConfig& c = cfg.realtime;
-    rt.get("sample_thread_priority", c.sample_thread_priority, Check<int>([](const int& p) {
-             return (p >= 0 && p <= 99) ? std::string()
-                                        : "must be in [0, 99] (SCHED_FIFO 1..99; 0 = normal scheduling), got " +
-                                              std::to_string(p);
-           }));
-    rt.get("dds_thread_priority", c.dds_thread_priority, Check<int>([&c](const int& p) {
-             if (p < 0 || p > 99)
-               return "must be in [0, 99] (SCHED_FIFO 1..99; 0 = normal scheduling), got " + std::to_string(p);
+    auto fifo_range = [](const int& p) {
+      return (p >= 0 && p <= 99) ? std::string()
+                                 : "must be in [0, 99] (SCHED_FIFO 1..99; 0 = normal scheduling), got " + std::to_string(p);
+    };
+    rt.get("sample_thread_priority", c.sample_thread_priority, Check<int>(fifo_range));
+    rt.get("dds_thread_priority", c.dds_thread_priority, Check<int>([&c, &fifo_range](const int& p) {
+             if (const std::string range = fifo_range(p); !range.empty()) return range;
              if (p > 0 && p >= c.sample_thread_priority)
                return std::string("must be below realtime.sample_thread_priority (") +
                       std::to_string(c.sample_thread_priority) + ", " +

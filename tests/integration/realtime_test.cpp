@@ -14,7 +14,6 @@
 #include <unistd.h>
 
 #include <chrono>
-#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -24,12 +23,15 @@
 #include "speed.hpp"
 #include "temp_dir.hpp"
 #include "test_domain.hpp"
+#include "threads.hpp"
 
 namespace {
 
 using namespace std::chrono_literals;
+using ve::test::find_task;
 using ve::test::read_file;
-namespace fs = std::filesystem;
+using ve::test::task_sched;
+using ve::test::tasks_of;
 
 constexpr int kCapIpcLock = 14;
 constexpr int kCapSysNice = 23;
@@ -65,29 +67,6 @@ std::string cpu_list(const cpu_set_t& set) {
     i = j + 1;
   }
   return s;
-}
-
-/// The process' threads by name: task directory of the first one called `comm`.
-std::string find_task(pid_t pid, const std::string& comm) {
-  std::error_code ec;
-  for (const auto& t : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
-    std::string c = read_file(t.path().string() + "/comm");
-    while (!c.empty() && (c.back() == '\n')) c.pop_back();
-    if (c == comm) return t.path().string();
-  }
-  return {};
-}
-
-/// Scheduling policy and RT priority of a task (proc(5) stat fields 41 and 40).
-void task_sched(const std::string& task, int& policy, int& rt_priority) {
-  const std::string stat = read_file(task + "/stat");
-  std::istringstream in(stat.substr(stat.rfind(')') + 2));
-  std::string f;
-  policy = rt_priority = -1;
-  for (int i = 3; i <= 41 && (in >> f); ++i) {
-    if (i == 40) rt_priority = std::stoi(f);
-    if (i == 41) policy = std::stoi(f);
-  }
 }
 
 /// In the child, before exec: `virtual-encoder` without the real-time permissions
@@ -194,25 +173,6 @@ TEST(Realtime, RunPinsEachSampleThreadToItsCpus) {
               status_field(y_task + "/status", "Cpus_allowed_list").c_str());
   run.signal(SIGTERM);
   EXPECT_EQ(run.wait_exit(15s), 0) << run.log();
-}
-
-/// Every thread of `pid`: name, policy and real-time priority.
-struct Task {
-  std::string dir, comm;
-  int policy = -1, prio = -1;
-};
-std::vector<Task> tasks_of(pid_t pid) {
-  std::vector<Task> out;
-  std::error_code ec;
-  for (const auto& t : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
-    Task task;
-    task.dir = t.path().string();
-    task.comm = read_file(task.dir + "/comm");
-    while (!task.comm.empty() && task.comm.back() == '\n') task.comm.pop_back();
-    task_sched(task.dir, task.policy, task.prio);
-    out.push_back(task);
-  }
-  return out;
 }
 
 // Fast DDS's own threads (event, receive) take the writers' locks a sample thread's

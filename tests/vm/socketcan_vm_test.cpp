@@ -37,6 +37,7 @@
 #include "../integration/process.hpp"
 #include "../integration/temp_dir.hpp"
 #include "../integration/test_domain.hpp"
+#include "../integration/threads.hpp"
 #include "guest_suite.hpp"
 
 extern char** environ;
@@ -468,27 +469,6 @@ double line_fit_rms(const std::vector<std::pair<double, double>>& tx) {
 /// (socketcan driver, estimator, DDS writer) -> a DDS subscriber in this process.
 /// The published positions at constant velocity are as accurate as the same
 /// estimator fed by the simulator driver directly.
-namespace {
-/// "comm policy/priority" of every thread of `pid` (proc(5) stat fields 40 and 41).
-std::vector<std::string> thread_scheduling(pid_t pid) {
-  std::vector<std::string> out;
-  std::error_code ec;
-  for (const auto& t : std::filesystem::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
-    std::string comm = slurp(t.path().string() + "/comm");
-    while (!comm.empty() && comm.back() == '\n') comm.pop_back();
-    const std::string stat = slurp(t.path().string() + "/stat");
-    std::istringstream in(stat.substr(stat.rfind(')') + 2));
-    std::string f, prio, policy;
-    for (int i = 3; i <= 41 && (in >> f); ++i) {
-      if (i == 40) prio = f;
-      if (i == 41) policy = f;
-    }
-    out.push_back(comm + " " + policy + "/" + prio);
-  }
-  return out;
-}
-}  // namespace
-
 // SocketCAN's receive thread is part of the sample path (the sample thread waits for
 // its frames): `run` gives it the sample thread's real-time settings, and Fast DDS's
 // threads run below both when realtime.dds_thread_priority asks for it.
@@ -507,10 +487,13 @@ TEST(SocketCanGuest, ReceiveThreadRunsWithTheSampleThreadsSettings) {
   const int domain = ve::test::dds_domain(0);  // the guest tests run one after the other
   const pid_t run = spawn({kBin, "run", "--config", machine, "--domain", std::to_string(domain), "--duration", "20"});
   ASSERT_GT(run, 0);
+  // "comm policy/priority" of every thread of `run`.
   std::vector<std::string> threads;
   auto has = [&](const std::string& entry) { return std::find(threads.begin(), threads.end(), entry) != threads.end(); };
   for (int i = 0; i < 1500; ++i) {
-    threads = thread_scheduling(run);
+    threads.clear();
+    for (const auto& t : ve::test::tasks_of(run))
+      threads.push_back(t.comm + " " + std::to_string(t.policy) + "/" + std::to_string(t.prio));
     if (has("ve-rx-x 1/30") && has("ve-x 1/30")) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }

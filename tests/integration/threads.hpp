@@ -1,0 +1,56 @@
+// A process' threads as /proc shows them: name, scheduling policy and real-time
+// priority, for the tests that check what `run` gives each of its threads.
+#pragma once
+
+#include <sys/types.h>
+
+#include <filesystem>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "process.hpp"
+
+namespace ve::test {
+
+/// Scheduling policy and RT priority of a task (proc(5) stat fields 41 and 40).
+inline void task_sched(const std::string& task, int& policy, int& rt_priority) {
+  const std::string stat = read_file(task + "/stat");
+  std::istringstream in(stat.substr(stat.rfind(')') + 2));
+  std::string f;
+  policy = rt_priority = -1;
+  for (int i = 3; i <= 41 && (in >> f); ++i) {
+    if (i == 40) rt_priority = std::stoi(f);
+    if (i == 41) policy = std::stoi(f);
+  }
+}
+
+/// One thread of a process: its task directory, name, policy and real-time priority.
+struct Task {
+  std::string dir, comm;
+  int policy = -1, prio = -1;
+};
+
+/// Every thread of `pid` (none once it has gone).
+inline std::vector<Task> tasks_of(pid_t pid) {
+  std::vector<Task> out;
+  std::error_code ec;
+  for (const auto& t : std::filesystem::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    Task task;
+    task.dir = t.path().string();
+    task.comm = read_file(task.dir + "/comm");
+    while (!task.comm.empty() && task.comm.back() == '\n') task.comm.pop_back();
+    task_sched(task.dir, task.policy, task.prio);
+    out.push_back(task);
+  }
+  return out;
+}
+
+/// The task directory of the first thread of `pid` called `comm`; "" if none.
+inline std::string find_task(pid_t pid, const std::string& comm) {
+  for (const auto& t : tasks_of(pid))
+    if (t.comm == comm) return t.dir;
+  return {};
+}
+
+}  // namespace ve::test
