@@ -978,6 +978,7 @@ const FilterNumber kFilterNumbers[] = {
     {"hall_gain_tc_std_per_k", &core::FilterConfig::hall_gain_tc_std_per_k, 0.0, 0.01, "1/K"},
     {"hall_offset_tc_std_v_per_k", &core::FilterConfig::hall_offset_tc_std_v_per_k, 0.0, 0.01, "V/K"},
     {"temperature_coefficient_rel_std", &core::FilterConfig::temperature_coefficient_rel_std, 0.0, 1.0, ""},
+    {"hall_unread_temperature_rise_k", &core::FilterConfig::hall_unread_temperature_rise_k, 0.0, 100.0, "K"},
     {"hall_adaptation_model_std_v", &core::FilterConfig::hall_adaptation_model_std_v, 0.0, 0.1, "V"},
     {"hall_common_gain_model_std", &core::FilterConfig::hall_common_gain_model_std, 0.0, 0.1, ""},
     // --- steady motion ---

@@ -70,6 +70,15 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   if (!enabled_ || temperature_known_ || !std::isfinite(relative_change) || !(variance > 0.0) ||
       !(std::abs(common_tc_per_k_) > 0.0))
     return;
+  // A fix whose readings cannot tell the common gain from the position (one sensor
+  // out of saturation, say) returns the gain it was given with the variance it was
+  // given. Before anything is learnt that is the calibration's gain with the start-up
+  // prior: taken as a reading, it said "no change of temperature", and a warm motor
+  // standing there was VALID 10 um off (motor 52 of the population benchmark, 3
+  // Halls, one out of saturation). A fix counts once the gain it returns is known to
+  // at most kInferKnownShare of that prior's variance: from its own readings, or
+  // from what the fixes before it taught.
+  if (!reads_temperature(variance)) return;
   const double g = (1.0 + common_gain_) * (1.0 + relative_change) - 1.0;
   const double w = 1.0 / (variance + model_var_common_);
   infer_wg_ = infer_decay_ * infer_wg_ + w * g;

@@ -113,6 +113,12 @@ class HallAdaptation {
   /// offsets may have moved by any amount a temperature change explains, which the
   /// published sigma cannot know yet.
   bool temperature_checked() const { return !enabled_ || temperature_known_ || inferred_started_; }
+  /// Whether a fix whose common gain came out with variance `common_gain_variance`
+  /// is a reading of the thermometer (observe_fix_gain): the gain it returns is known
+  /// to at most kInferKnownShare of the start-up prior's variance.
+  bool reads_temperature(double common_gain_variance) const {
+    return common_gain_variance <= kInferKnownShare * p0_common_;
+  }
   /// Variance the adapted gain and offset leave in sensor i's corrected reading
   /// where its table reads `table_v` [V^2]; 0 when adaptation is off.
   double reading_variance(int i, double table_v) const {
@@ -190,6 +196,9 @@ class HallAdaptation {
   // over about kInferAverageS, first taken in after kInferFirstS.
   static constexpr double kInferAverageS = 0.05;
   static constexpr double kInferFirstS = 0.02;  ///< the first reading: a shorter average
+  /// A fix is a reading of the thermometer only if its variance of the common gain is
+  /// at most this share of the start-up prior's (observe_fix_gain).
+  static constexpr double kInferKnownShare = 0.5;
   double infer_decay_ = 0.0;
   double infer_wg_ = 0.0, infer_w_ = 0.0;
   std::uint64_t infer_samples_ = 0, infer_first_samples_ = 0;

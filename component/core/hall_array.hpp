@@ -39,6 +39,14 @@ struct HallFix {
   /// [m^2/V^2]: a reading error common to the table's place (its noise,
   /// SensorModel::table_noise_v) moves the fix by this times its variance.
   double sensitivity_m2_per_v2 = 0.0;
+  /// The sum over the sensors used of the squared sensitivity of the position to the
+  /// sensor's reading times the reading's level about mid [m^2]: independent relative
+  /// errors of the sensors' gains, of variance g each, move the fix by this times g.
+  double level_sensitivity_m2 = 0.0;
+  /// The same sensitivities times the levels, summed with their signs [m]: a relative
+  /// error g of the gain every sensor shares moves the fix by this times g (0 where the
+  /// fix's own estimate of the common gain takes it up).
+  double common_level_m = 0.0;
   /// Likewise what the adaptation is still unsure of in the sensors' gains and
   /// offsets beyond its start-up prior (HallAdaptation::combined_variance, with the
   /// sensors' correlations once they are learnt jointly): it repeats

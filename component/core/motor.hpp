@@ -200,6 +200,13 @@ struct FilterConfig {
   double hall_gain_tc_std_per_k = 0.0003;
   double hall_offset_tc_std_v_per_k = 0.0003;
   double temperature_coefficient_rel_std = 0.2;
+  /// Where no fix can read the temperature (one sensor out of saturation: the gain
+  /// it shares with the others and the position are one equation short) and the
+  /// carriage stands, how far from its calibration temperature the motor is taken to
+  /// be at most, one sigma [K]: the published sigma holds what each sensor's own gain
+  /// and offset may have moved by over it until a fix reads the temperature, and
+  /// VALID follows that sigma. 0: the temperature is taken as the calibration's there.
+  double hall_unread_temperature_rise_k = 10.0;
   /// What one sample can tell of a sensor's own gain and offset at best: the
   /// table's own error and the prediction's error repeat from sample to sample,
   /// so a sample's residual is trusted no more than this [V] (keeps the sensors'

@@ -368,6 +368,33 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
         std::min(1.0, speed * kf_.period_s() / (HallAdaptation::kNewPlaceShareOfPitch * cfg_.motor.magnet_pitch_m));
     const bool settled =
         settled_samples_ >= settle_samples_ || (settled_samples_ >= settle_moving_samples_ && share >= kAdaptSettleMovingShare);
+    if (!adapt_.temperature_checked()) {
+      // No fix has read the temperature yet. Where the carriage stands and no fix can
+      // read it (one sensor out of saturation), sigma holds what the sensors' own gains
+      // and offsets may have moved by since the calibration, as far as the data sheet's
+      // spreads and hall_unread_temperature_rise_k allow, and VALID follows that sigma.
+      // (Elsewhere VALID waits for the reading, a few tens of ms.)
+      if (judge) {
+        const auto& fc = cfg_.motor.filter;
+        const double rise = fc.hall_unread_temperature_rise_k;
+        unread_place_ = fix.common_gain_variance > 0.0 && !adapt_.reads_temperature(fix.common_gain_variance) &&
+                        share < kAdaptSettleMovingShare;
+        // The gain all sensors share (the magnets' remanence and the sensors' mean
+        // sensitivity), which a fix with one sensor cannot tell from the position, and
+        // each sensor's own gain and offset.
+        const double common = (fc.magnet_remanence_tc_per_k + fc.hall_gain_tc_per_k) * fix.common_level_m;
+        unread_var_m2_ =
+            unread_place_
+                ? rise * rise *
+                      (common * common * (1.0 + fc.temperature_coefficient_rel_std * fc.temperature_coefficient_rel_std) +
+                       fc.hall_offset_tc_std_v_per_k * fc.hall_offset_tc_std_v_per_k * fix.sensitivity_m2_per_v2 +
+                       fc.hall_gain_tc_std_per_k * fc.hall_gain_tc_std_per_k * fix.level_sensitivity_m2)
+                : 0.0;
+      }
+    } else {
+      unread_var_m2_ = 0.0;
+      unread_place_ = false;
+    }
     bool learn = judge && settled && rejected_in_row_ == 0;
     if (learn) {
       const double d = fix.position_m - guess;
@@ -489,7 +516,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
                                                                     out_.position_m > cfg_.sensors.table_trusted_to_m);
   const double beyond_m = beyond_passes ? cfg_.sensors.table_outside_std_m : 0.0;
   out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + table_var_m2_ +
-                                  drift_var_m2_ + scale_m * scale_m + beyond_m * beyond_m);
+                                  drift_var_m2_ + unread_var_m2_ + scale_m * scale_m + beyond_m * beyond_m);
   const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
@@ -521,7 +548,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   if (initialised_ && fc.valid_confidence_sigma * out_.position_std_m < fc.valid_position_accuracy_m &&
       fc.valid_confidence_sigma * out_.velocity_std_mps < fc.valid_velocity_accuracy_mps &&
       without_fix_in_row_ < cfg_.max_samples_without_fix && rejected_in_row_ < 2 && healthy >= min_healthy_ &&
-      temperature_checked && !beyond_passes)
+      (temperature_checked || unread_place_) && !beyond_passes)
     status |= status::kValid;
   out_.status = status;
   return out_;

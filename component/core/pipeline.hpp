@@ -142,6 +142,13 @@ class AxisPipeline {
   double drift_var_m2_ = 0.0;
   /// The velocity error that drift's pattern makes at the current speed [(m/s)^2].
   double drift_velocity_var_ = 0.0;
+  /// Until a fix has read the temperature (HallAdaptation::temperature_checked):
+  /// what the sensors' own gains and offsets may have moved the last fix by over
+  /// FilterConfig::hall_unread_temperature_rise_k [m^2], added to the published sigma;
+  /// and whether the carriage stands where no fix can read it (one sensor out of
+  /// saturation), where VALID follows that sigma instead of waiting for a reading.
+  double unread_var_m2_ = 0.0;
+  bool unread_place_ = false;
   /// The sensors' covariance was widened (a temperature change): the next fix widens
   /// the filter's covariance by the drift it allows for.
   bool widen_filter_ = false;

@@ -76,6 +76,13 @@ struct Cell {  // one motor, one ruler mode, one condition, one scenario
   std::uint32_t flagged = 0;
 };
 
+/// "/F" and the mask in hex (the faulty sensors' bits).
+std::string hex_mask(const char* prefix, std::uint32_t mask) {
+  char b[24];
+  std::snprintf(b, sizeof b, "%s%02x", prefix, static_cast<unsigned>(mask));
+  return b;
+}
+
 struct MotorResult {
   sim::PopulationMotor motor;
   bench::CalibrationOutcome cal[2];  // 0: with ruler, 1: without
@@ -436,7 +443,9 @@ int main(int argc, char** argv) {
               const Cell& x = r.cell[ruler][k][s];
               line += x.ok ? f(" %7.3f", x.pos_rms * 1e6) + f("/%.4f", x.vel_rms * 1e3) + f("/%2.0f%%", 100 * x.pos_cov) +
                                  f("/%2.0f%%", 100 * x.vel_cov) + f("/%3.0f%%", 100 * x.valid) +
-                                 (x.flagged ? f("/F%02x", x.flagged) : "")
+                                 (x.flagged ? hex_mask("/F", x.flagged) : "") +
+                                 (x.max_valid_err > bench::kValidPositionAccuracyM ? f("/VALID at %.1f um", x.max_valid_err * 1e6) : "") +
+                                 (ruler == 1 ? f(" [floor %.2f", x.floor_rms * 1e6) + f(", beyond %.2f]", x.beyond_floor_rms * 1e6) : "")
                            : "       -";
             }
             std::fprintf(stderr, "          %-14s%s\n", bench::condition_name(kConditions[k]), line.c_str());
@@ -462,8 +471,8 @@ int main(int argc, char** argv) {
         "Without a ruler the magnet track is the only length there is: its placement errors (up to 50 um per "
         "magnet in this population) set its scale, which no calibration without a ruler can know. The track-scale "
         "floor is the error an exact calibration would still have from that (the slope of a line through the "
-        "simulated track's magnet boundaries over the travel against their nominal places, times the distance "
-        "from home); 'beyond the floor' is the product's error with that part taken out, sample by sample. "
+        "simulated track's magnet boundaries against their nominal places, over the stretch the calibration's "
+        "slow passes crossed, times the distance from home); 'beyond the floor' is the product's error with that part taken out, sample by sample. "
      << (o.temperature_signal ? "Every motor's sensor node reports its temperature (0.1 K noise, 0.0625 K steps).\n\n"
                               : "No sensor node reports a temperature.\n\n");
   int cal_ok[2] = {0, 0}, cal_good[2] = {0, 0};

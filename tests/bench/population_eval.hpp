@@ -212,7 +212,8 @@ struct RunResult {
   double window_s = 0.0;
   /// Without a ruler: the position error an exact calibration would still have,
   /// because the track is its only length (SimSource::track_scale_error over the
-  /// travel, times the distance from home), RMS over the window; and the product's
+  /// stretch the calibration's slow passes crossed, times the distance from home),
+  /// RMS over the window; and the product's
   /// error with that part taken out, RMS (what the calibration and the estimator
   /// add). Both 0 with a ruler.
   double track_floor_rms_m = 0.0, beyond_floor_rms_m = 0.0;
@@ -288,9 +289,17 @@ inline RunResult run_population_scenario(const sim::PopulationMotor& p, const Ca
   pc.start_position_known = true;
   pc.start_position_m = cfg.profile.start_m - c.zero_m;
   core::AxisPipeline pipeline(pc, c.cal.table);
-  // The scale of the sweep's stretch of track, which is all a calibration without
-  // a ruler can take its metre from.
-  const double track_scale = c.with_ruler ? 0.0 : src.track_scale_error(0.0, p.hardware.travel_m);
+  // The scale of the stretch of track the calibration's slow passes crossed (the
+  // table's trusted stretch), which is all a calibration without a ruler can take
+  // its metre from: on a short track the magnets beyond it change a line through
+  // the whole travel by tens of ppm (motor 17: -10 ppm over the travel, +63 ppm
+  // over the stretch swept).
+  const auto& model = c.cal.model;
+  const double track_scale =
+      c.with_ruler ? 0.0
+      : model.trusted_span_known()
+          ? src.track_scale_error(c.zero_m + model.table_trusted_from_m, c.zero_m + model.table_trusted_to_m)
+          : src.track_scale_error(0.0, p.hardware.travel_m);
   double floor_sq = 0.0, beyond_sq = 0.0;
   core::RawSample s;
   const std::uint32_t probe_bit = probe.inject ? 1u << probe.sensor : 0u;
