@@ -119,6 +119,19 @@ class HallAdaptation {
   bool reads_temperature(double common_gain_variance) const {
     return common_gain_variance <= kInferKnownShare * p0_common_;
   }
+  /// The variance a change of temperature of `rise_k`, not read, leaves in a fix with
+  /// these sensitivities (HallFix::common_level_m, sensitivity_m2_per_v2,
+  /// level_sensitivity_m2) [m^2]: the gain all sensors share by the data sheet's
+  /// coefficients (known to temperature_coefficient_rel_std), and each sensor's own
+  /// gain and offset by their spreads.
+  double unread_rise_variance(double rise_k, double common_level_m, double sensitivity_m2_per_v2,
+                              double level_sensitivity_m2) const {
+    const double common = common_tc_per_k_ * common_level_m;
+    return rise_k * rise_k *
+           (common * common * (1.0 + tc_rel_std_ * tc_rel_std_) +
+            offset_tc_std_v_ * offset_tc_std_v_ * sensitivity_m2_per_v2 +
+            gain_tc_std_ * gain_tc_std_ * level_sensitivity_m2);
+  }
   /// Variance the adapted gain and offset leave in sensor i's corrected reading
   /// where its table reads `table_v` [V^2]; 0 when adaptation is off.
   double reading_variance(int i, double table_v) const {

@@ -262,16 +262,19 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   fix.sensitivity_m2_per_v2 = gain_sq;
   // A sensor's own gain error moves its reading by its level about mid times the
   // error: the position's variance per unit of such errors, independent per sensor.
-  // A gain error all sensors share moves the fix by its sum of those, signed.
-  double level_sq = 0.0, level = 0.0;
-  for (int q = 0; q < n_on; ++q) {
-    const auto k = static_cast<std::size_t>(on[q]);
-    const double u = tv[k] - mid;
-    level_sq += c[k] * c[k] * u * u;
-    level += c[k] * u;
+  // A gain error all sensors share moves the fix by its sum of those, signed. Only
+  // wanted until a fix has read the temperature (AxisPipeline's unread variance).
+  if (adaptation && !adaptation->temperature_checked()) {
+    double level_sq = 0.0, level = 0.0;
+    for (int q = 0; q < n_on; ++q) {
+      const auto k = static_cast<std::size_t>(on[q]);
+      const double u = tv[k] - mid;
+      level_sq += c[k] * c[k] * u * u;
+      level += c[k] * u;
+    }
+    fix.level_sensitivity_m2 = level_sq;
+    fix.common_level_m = level;
   }
-  fix.level_sensitivity_m2 = level_sq;
-  fix.common_level_m = level;
   fix.drift_m2 = std::max(0.0, drift);
   fix.ok = true;
   fix.variance_m2 = var_x + floor_m2_;

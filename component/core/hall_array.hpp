@@ -45,7 +45,8 @@ struct HallFix {
   double level_sensitivity_m2 = 0.0;
   /// The same sensitivities times the levels, summed with their signs [m]: a relative
   /// error g of the gain every sensor shares moves the fix by this times g (0 where the
-  /// fix's own estimate of the common gain takes it up).
+  /// fix's own estimate of the common gain takes it up). Both only until a fix has
+  /// read the temperature (HallAdaptation::temperature_checked), 0 after.
   double common_level_m = 0.0;
   /// Likewise what the adaptation is still unsure of in the sensors' gains and
   /// offsets beyond its start-up prior (HallAdaptation::combined_variance, with the

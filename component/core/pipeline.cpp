@@ -375,21 +375,12 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       // spreads and hall_unread_temperature_rise_k allow, and VALID follows that sigma.
       // (Elsewhere VALID waits for the reading, a few tens of ms.)
       if (judge) {
-        const auto& fc = cfg_.motor.filter;
-        const double rise = fc.hall_unread_temperature_rise_k;
         unread_place_ = fix.common_gain_variance > 0.0 && !adapt_.reads_temperature(fix.common_gain_variance) &&
                         share < kAdaptSettleMovingShare;
-        // The gain all sensors share (the magnets' remanence and the sensors' mean
-        // sensitivity), which a fix with one sensor cannot tell from the position, and
-        // each sensor's own gain and offset.
-        const double common = (fc.magnet_remanence_tc_per_k + fc.hall_gain_tc_per_k) * fix.common_level_m;
-        unread_var_m2_ =
-            unread_place_
-                ? rise * rise *
-                      (common * common * (1.0 + fc.temperature_coefficient_rel_std * fc.temperature_coefficient_rel_std) +
-                       fc.hall_offset_tc_std_v_per_k * fc.hall_offset_tc_std_v_per_k * fix.sensitivity_m2_per_v2 +
-                       fc.hall_gain_tc_std_per_k * fc.hall_gain_tc_std_per_k * fix.level_sensitivity_m2)
-                : 0.0;
+        unread_var_m2_ = unread_place_ ? adapt_.unread_rise_variance(cfg_.motor.filter.hall_unread_temperature_rise_k,
+                                                                     fix.common_level_m, fix.sensitivity_m2_per_v2,
+                                                                     fix.level_sensitivity_m2)
+                                       : 0.0;
       }
     } else {
       unread_var_m2_ = 0.0;
