@@ -232,11 +232,16 @@ double percentile(std::vector<double> v, double p) {
 
 /// The shipped profiles (deploy/dds-profiles.xml) with the test's state reader keeping
 /// 8192 samples (2 s at 4 kHz) instead of 256 for each of up to 16 axes (Fast DDS wants
-/// max_samples >= max_instances * max_samples_per_instance), written to `path`; empty when the
-/// shipped file has not the shape expected. The writer (`run`) is as shipped: best
-/// effort, history of one. The emulated guest stalls the test's receive thread for
-/// longer than 256 samples take, and a reader history that overwrites what it has not
-/// handed over loses estimates the TPDOs are compared with.
+/// max_samples >= max_instances * max_samples_per_instance), and its sockets receiving into
+/// kTestReceiveBuffer bytes instead of 4 MiB, written to `path`; empty when the shipped file
+/// has not the shape expected. The writer (`run`) is as shipped: best effort, history of
+/// one. The emulated guest stalls the test's receive thread for longer than 256 samples
+/// take, and a reader history that overwrites what it has not handed over loses estimates
+/// the TPDOs are compared with. On a slow host the guest's reader also falls behind the
+/// stream for longer than the shipped 4 MiB hold (about 1.6 s of it): in one CI run it was
+/// 1.47 s behind after the SYNC phase and 2,881 estimates had been dropped at its socket.
+constexpr int kTestReceiveBuffer = 32 << 20;  // the kernel accounts twice that: about 13 s of the stream
+
 std::string deep_reader_profiles(const std::string& path) {
   std::ifstream in(kSrc + "/deploy/dds-profiles.xml");
   std::stringstream text;
@@ -252,6 +257,10 @@ std::string deep_reader_profiles(const std::string& path) {
     if (k == std::string::npos || k > end) return {};
     x.replace(k, from.size(), to);
   }
+  const std::string shipped_buffer = "<receiveBufferSize>4194304</receiveBufferSize>";
+  const auto b = x.find(shipped_buffer);
+  if (b == std::string::npos) return {};
+  x.replace(b, shipped_buffer.size(), "<receiveBufferSize>" + std::to_string(kTestReceiveBuffer) + "</receiveBufferSize>");
   std::ofstream(path) << x;
   return path;
 }
@@ -302,6 +311,10 @@ TEST(CanopenGuest, MasterDrivesTheNodeOfARunningEncoder) {
   TestMaster master("vcan0");
   ASSERT_TRUE(master.ok()) << std::strerror(errno);
 
+  // The guest's cap on socket buffers, raised for the test's reader (deep_reader_profiles);
+  // the kernel caps SO_RCVBUF at it without an error.
+  std::ofstream("/proc/sys/net/core/rmem_max") << 2 * kTestReceiveBuffer << "\n";
+  ASSERT_GE(std::stol(slurp("/proc/sys/net/core/rmem_max")), 2L * kTestReceiveBuffer) << "net.core.rmem_max not raised";
   app::DdsOptions o;
   o.domain = domain;
   o.profiles_file = deep_reader_profiles(std::filesystem::absolute("deep-reader.xml").string());
