@@ -44,9 +44,27 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   infer_first_samples_ = static_cast<std::uint64_t>(std::ceil(kInferFirstS / ts_s));
 }
 
-void HallAdaptation::widen_for_rise(double d_k) {
+void HallAdaptation::widen_for_rise(double from_k, double to_k) {
   const double limit2 = gain_limit_ * gain_limit_;
+  // A sensor's coefficient is one number: what it moves the sensor by over a rise
+  // taken in steps is its coefficient times the whole rise, not a sum of independent
+  // steps. Steps of a quarter kelvin away from the calibration widened by the sum of
+  // their squares (a ramp to 10 K: 2.5 K^2 where 100 K^2 is due), and the first
+  // readings of the fixes' thermometer climb to the rise over tens of ms (motor 80 of
+  // the population, 10 K cold: -2.5, -5.7, -7.9 ... -10.7 K; its sensors' offsets
+  // were held to 1.1 mV where they had moved by 3.7-4.9 mV, and the axis was VALID
+  // 12 um off under a sigma of 2.3 um). What the published sigma holds (look_gg_,
+  // look_dd_) widens by the larger of a step's own square and what it adds to the
+  // square of the farthest rise from the calibration widened for so far (the way out,
+  // as if nothing had been learnt on it; steps back and forth within that, a
+  // thermometer's noise at a standstill, by their own squares only). The learning's
+  // own covariance widens by the step's square: widened by the whole rise, it let the
+  // first fixes of a start from rest move 2-sensor motors' gains and offsets by their
+  // noise (motor 8, 10 K cold: 5.0 um where it had been 3.5 um).
+  const double d_k = to_k - from_k;
   const double d2 = d_k * d_k;
+  const double d2_published = std::max(d2, to_k * to_k - farthest_k2_);
+  farthest_k2_ = std::max(farthest_k2_, to_k * to_k);
   // Once the motor is a kelvin or more from its calibration, the sensors' drift
   // outgrows the prior and is learnt jointly (see joint_update).
   widened_k2_ += d2;
@@ -61,8 +79,8 @@ void HallAdaptation::widen_for_rise(double d_k) {
     const auto k = static_cast<std::size_t>(i);
     pgg(i) = std::min(pgg(i) + gain_tc_std_ * gain_tc_std_ * d2, limit2);
     pdd(i) += offset_tc_std_v_ * offset_tc_std_v_ * d2;
-    look_gg_[k] = std::min(look_gg_[k] + gain_tc_std_ * gain_tc_std_ * d2, limit2);
-    look_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d2;
+    look_gg_[k] = std::min(look_gg_[k] + gain_tc_std_ * gain_tc_std_ * d2_published, limit2);
+    look_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d2_published;
   }
 }
 
@@ -89,15 +107,15 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   if (!inferred_started_) {
     inferred_started_ = true;
     inferred_k_ = rise_k;
-    widen_for_rise(rise_k);
+    widen_for_rise(0.0, rise_k);
     return;
   }
   // Then as temperature() follows a reported one: in steps of a quarter kelvin, each
   // step widening by what it allows (what was learnt in between stays learnt).
   const double d = rise_k - inferred_k_;
   if (std::abs(d) < 0.25) return;
+  widen_for_rise(inferred_k_, rise_k);
   inferred_k_ = rise_k;
-  widen_for_rise(d);
 }
 
 void HallAdaptation::update_common(double relative_change, double variance, double share) {
@@ -138,7 +156,7 @@ void HallAdaptation::temperature(double delta_k) {
     p_common_ = std::min(p0_gg_ + sd * sd + sd_reading * sd_reading, limit2);
     // Each sensor's spread for this rise; a reading's own error (kReadingStdK) moves
     // a sensor by far less than the start-up prior already allows for.
-    widen_for_rise(delta_k);
+    widen_for_rise(0.0, delta_k);
     return;
   }
   // The motor's temperature moves over minutes; the node's reading is noisy and
@@ -146,11 +164,12 @@ void HallAdaptation::temperature(double delta_k) {
   smoothed_k_ += temperature_alpha_ * (delta_k - smoothed_k_);
   const double d = smoothed_k_ - temperature_k_;
   if (std::abs(d) < 0.25) return;
+  const double from_k = temperature_k_;
   temperature_k_ = smoothed_k_;
   const double dg = common_tc_per_k_ * d;
   common_gain_ = std::clamp((1.0 + common_gain_) * (1.0 + dg) - 1.0, -gain_limit_, gain_limit_);
   p_common_ = std::min(p_common_ + tc_rel_std_ * tc_rel_std_ * dg * dg, limit2);
-  widen_for_rise(d);
+  widen_for_rise(from_k, temperature_k_);
 }
 
 double HallAdaptation::combined_variance(const std::array<double, kMaxHalls>& c,

@@ -204,7 +204,9 @@ class HallAdaptation {
   double smoothed_k_ = 0.0;           ///< the averaged rise [K]
   double temperature_k_ = 0.0;        ///< the rise last applied [K]
   bool temperature_known_ = false;
-  void widen_for_rise(double d_k);  ///< each sensor's gain and offset may have moved by d_k's worth
+  /// Each sensor's gain and offset may have moved by what a change of temperature
+  /// from `from_k` to `to_k` (rises over the calibration) allows.
+  void widen_for_rise(double from_k, double to_k);
   // The rise the fixes' common gain shows (observe_fix_gain): its weighted average
   // over about kInferAverageS, first taken in after kInferFirstS.
   static constexpr double kInferAverageS = 0.05;
@@ -270,6 +272,7 @@ class HallAdaptation {
   static constexpr double kJointFromK = 1.0;        ///< joint learning from this far off calibration [K]
   bool joint_ = false;
   double widened_k2_ = 0.0;  ///< sum of the squared rises widened for [K^2]
+  double farthest_k2_ = 0.0; ///< the square of the farthest rise widened for [K^2]
   int joint_count_ = 0;
   double joint_share_ = 0.0;
   void joint_update(const std::array<double, kMaxHalls>& r, const std::array<double, kMaxHalls>& u,

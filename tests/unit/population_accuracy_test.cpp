@@ -510,6 +510,33 @@ TEST_P(PopulationWarmStartFromRest, SigmaHoldsWhatTheSensorsHaveNotLearntYet) {
 INSTANTIATE_TEST_SUITE_P(Seeds, PopulationWarmStartFromRest, ::testing::Values(8u, 20u),
                          [](const auto& info) { return "motor_" + std::to_string(info.param); });
 
+// A motor of the held-out population (seeds 61-80, nothing tuned on them): motor 80,
+// a 40 mm pitch, 4 Halls 9.5 mm apart, three of whose offsets drift by 0.37-0.49 mV/K
+// (1.2-1.6 times the data sheet's spread, all of one sign). Started from rest 10 K
+// warm or cold, the fixes' thermometer reads the rise in steps over tens of ms (-2.5,
+// -5.7, -7.9 ... -10.7 K); the published sigma had widened by the sum of the steps'
+// squares, a third of the rise's, and held the offsets to 1.1 mV where they had moved
+// by 3.7-4.9 mV: VALID 9.4 and 12.6 um off under a sigma of 2.3 um. Its position
+// error is large here (4.9-6.3 um RMS, the drift is learnt over the first periods);
+// what is asserted is that VALID is not set while it is.
+TEST(PopulationWarmStartFromRestHeldOut, ValidOnlyWithinTheAccuracyOnMotor80) {
+  const auto p = sim::draw_population_motor(80, shipped_tuning());
+  const auto cal = calibrated_with_a_ruler(p);
+  ASSERT_TRUE(cal.ok) << cal.error;
+  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[2];  // 5 m/s^2, from rest
+  for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
+    const auto r = bench::run_population_scenario(p, cal, sc, cond, 1080);
+    ASSERT_TRUE(r.ok) << r.error;
+    std::printf("[ figures  ] %-11s %-15s position rms %.3f um | 2-sigma %.1f %% | VALID %.2f %% | largest error "
+                "while VALID %.2f um\n",
+                bench::condition_name(cond), sc.name.c_str(), r.err.position_m.rms() * 1e6,
+                100 * r.err.position_coverage(), 100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    EXPECT_LE(r.max_valid_error_m, bench::kValidPositionAccuracyM) << bench::condition_name(cond);
+    EXPECT_GT(r.valid_fraction(), 0.2) << bench::condition_name(cond) << ": VALID once the drift is learnt";
+    EXPECT_EQ(r.flagged, 0u) << bench::condition_name(cond) << ": no healthy sensor flagged";
+  }
+}
+
 // A motor 10 K warmer than at calibration, started at speed without a temperature from
 // its node: the fixes' common gain is its thermometer, read after the first 20 ms. That
 // reading widens the sensors' covariance (the drift a rise of that size allows), but the
