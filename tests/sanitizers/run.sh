@@ -47,7 +47,7 @@
 #    BadInput/Signal.* and BadInput/DiskError.* stay: they signal or starve running
 #    subcommands (run, monitor, record, calibrate), whose threads TSan does judge;
 #  - the calibrations and the population's accuracy guards, SelfCalibration.*,
-#    SelfCalibrationPopulation.*, Seeds/Population* and RealisticCalibration.*: pure
+#    SelfCalibrationPopulation.*, Seeds/Population*, Population*HeldOut.* and RealisticCalibration.*: pure
 #    computation of the core and the simulator on the test's one thread (no thread is
 #    started), which TSan slowed to 10-205 s each (about 1,100 s of the stage's CPU) with
 #    nothing to judge. ASan/UBSan runs them.
@@ -102,7 +102,7 @@ security='DdsSecurity\..*'
 if [ "$kind" = tsan ]; then
   exclude="$exclude|$security|PublisherKill\..*|DdsTypeObject\.AnnouncedOnRequest|BadInputFiles\..*|BadInputCli\..*"
   exclude="$exclude|BadInput/CommandLine\..*|BadInput/CommandLineValue\..*|BadInput/Help\..*"
-  exclude="$exclude|SelfCalibration\..*|SelfCalibrationPopulation\..*|Seeds/Population.*|RealisticCalibration\..*"
+  exclude="$exclude|SelfCalibration\..*|SelfCalibrationPopulation\..*|Seeds/Population.*|Population.*HeldOut\..*|RealisticCalibration\..*"
 fi
 ctest --test-dir "$build" --output-on-failure --timeout 600 --parallel "$(nproc)" -L "$labels" -LE 'vm|interop|plant' \
   -E "^($exclude)\$" "$@" || status=1
