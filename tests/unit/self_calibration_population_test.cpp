@@ -238,6 +238,28 @@ TEST(SelfCalibrationPopulation, TheCoilFieldAndTheAccelerometerScaleDoNotFeedEac
   for (const auto& pr : o.problems) EXPECT_EQ(pr.find("did not settle"), std::string::npos) << pr;
 }
 
+/// Motor 89 (3 Halls 7.4 mm apart on a 27.7 mm pitch, two out of saturation at a
+/// time; held out of the population the calibration was developed on) does not
+/// settle without a ruler: its coil field comes out -0.08 mV/(m/s^2) against the
+/// motor's -0.56 and the fast motion stays 3.8 um beyond the fixes' noise, while its
+/// slow passes were steady (they meet the Hall positions to 0.04 um). The refusal had
+/// asked for the sweep again at a steady speed: it now says the sweep was steady,
+/// that the fit to the fast motion is what did not settle, and what to do instead.
+TEST(SelfCalibrationPopulation, AnUnsettledFitToTheFastMotionIsNotBlamedOnTheSweep) {
+  const Outcome o = calibrate(89, tuning());
+  SCOPED_TRACE(o.summary);
+  ASSERT_TRUE(o.ok) << o.error;
+  EXPECT_FALSE(o.good);
+  const auto unsettled = std::find_if(o.problems.begin(), o.problems.end(),
+                                      [](const std::string& pr) { return pr.find("did not settle") != std::string::npos; });
+  ASSERT_NE(unsettled, o.problems.end()) << "no problem says the iterations did not settle";
+  std::printf("[ refusal  ] %s\n", unsettled->c_str());
+  EXPECT_NE(unsettled->find("the slow passes were steady"), std::string::npos) << *unsettled;
+  EXPECT_NE(unsettled->find("fit to the fast motion"), std::string::npos) << *unsettled;
+  EXPECT_NE(unsettled->find("Calibrate with a ruler"), std::string::npos) << *unsettled;
+  EXPECT_EQ(unsettled->find("record the sweep again"), std::string::npos) << *unsettled;
+}
+
 /// Motor 8 never settles to 0.05 um: from its 6th iteration on the estimate goes
 /// back and forth by 0.08 um RMS, which the verdict tolerates (unsettled_limit_m).
 /// Running on to the 12th only traded one of those neighbouring solutions for
