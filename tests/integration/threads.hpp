@@ -13,12 +13,17 @@
 
 namespace ve::test {
 
-/// Scheduling policy and RT priority of a task (proc(5) stat fields 41 and 40).
+/// Scheduling policy and RT priority of a task (proc(5) stat fields 41 and 40); both -1
+/// when the task has gone (its stat reads empty: a short-lived thread that ended between
+/// listing the process' tasks and reading it; taking the empty text apart once threw
+/// out of a test in a CI run).
 inline void task_sched(const std::string& task, int& policy, int& rt_priority) {
-  const std::string stat = read_file(task + "/stat");
-  std::istringstream in(stat.substr(stat.rfind(')') + 2));
-  std::string f;
   policy = rt_priority = -1;
+  const std::string stat = read_file(task + "/stat");
+  const auto name_end = stat.rfind(')');
+  if (name_end == std::string::npos || name_end + 2 > stat.size()) return;
+  std::istringstream in(stat.substr(name_end + 2));
+  std::string f;
   for (int i = 3; i <= 41 && (in >> f); ++i) {
     if (i == 40) rt_priority = std::stoi(f);
     if (i == 41) policy = std::stoi(f);
@@ -40,6 +45,7 @@ inline std::vector<Task> tasks_of(pid_t pid) {
     task.dir = t.path().string();
     task.comm = read_file(task.dir + "/comm");
     while (!task.comm.empty() && task.comm.back() == '\n') task.comm.pop_back();
+    if (task.comm.empty()) continue;  // gone since the listing
     task_sched(task.dir, task.policy, task.prio);
     out.push_back(task);
   }
