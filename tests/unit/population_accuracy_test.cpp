@@ -485,21 +485,40 @@ TEST_P(PopulationWarmMotion, SensorsDriftedByTemperatureAreLearntTogetherInTenth
 // second, the position 2.3-2.6 um RMS with 81-89 % of it within 2 sigma, and 7.5 um
 // off while VALID. Considered in the joint update (its variance and its covariance
 // with the sensors), 1.2 um with every sample within 2 sigma.
+/// A motor calibrated with a ruler and the scenario it is started in, from rest at
+/// 5 m/s^2, for the warm starts below (each run at +10 K and at -10 K).
+struct WarmStartFromRest {
+  sim::PopulationMotor motor;
+  bench::CalibrationOutcome cal;
+  bench::PopScenario scenario;
+};
+
+WarmStartFromRest warm_start_from_rest(std::uint64_t seed) {
+  auto p = sim::draw_population_motor(seed, shipped_tuning());
+  auto cal = calibrated_with_a_ruler(p);
+  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[2];  // 5 m/s^2, from rest
+  return {std::move(p), std::move(cal), sc};
+}
+
+constexpr bench::Condition kWarmConditions[] = {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k};
+
+void print_warm_start_figures(bench::Condition cond, const bench::PopScenario& sc, const bench::RunResult& r) {
+  std::printf("[ figures  ] %-11s %-15s position rms %.3f um | 2-sigma %.1f %% | VALID %.2f %% | largest error "
+              "while VALID %.2f um\n",
+              bench::condition_name(cond), sc.name.c_str(), r.err.position_m.rms() * 1e6,
+              100 * r.err.position_coverage(), 100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+}
+
 class PopulationWarmStartFromRest : public ::testing::TestWithParam<std::uint64_t> {};
 
 TEST_P(PopulationWarmStartFromRest, SigmaHoldsWhatTheSensorsHaveNotLearntYet) {
-  const auto p = sim::draw_population_motor(GetParam(), shipped_tuning());
+  const auto [p, cal, sc] = warm_start_from_rest(GetParam());
   ASSERT_FALSE(p.sim.temperature.report);
-  const auto cal = calibrated_with_a_ruler(p);
   ASSERT_TRUE(cal.ok) << cal.error;
-  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[2];  // 5 m/s^2, from rest
-  for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
+  for (const auto cond : kWarmConditions) {
     const auto r = bench::run_population_scenario(p, cal, sc, cond, 1000 + GetParam());
     ASSERT_TRUE(r.ok) << r.error;
-    std::printf("[ figures  ] %-11s %-15s position rms %.3f um | 2-sigma %.1f %% | VALID %.2f %% | largest error "
-                "while VALID %.2f um\n",
-                bench::condition_name(cond), sc.name.c_str(), r.err.position_m.rms() * 1e6,
-                100 * r.err.position_coverage(), 100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    print_warm_start_figures(cond, sc, r);
     EXPECT_GE(r.err.position_coverage(), 0.9) << bench::condition_name(cond);
     EXPECT_LE(r.max_valid_error_m, bench::kValidPositionAccuracyM) << bench::condition_name(cond);
     EXPECT_LE(r.err.position_m.rms(), 1.5e-6) << bench::condition_name(cond);
@@ -520,17 +539,12 @@ INSTANTIATE_TEST_SUITE_P(Seeds, PopulationWarmStartFromRest, ::testing::Values(8
 // error is large here (4.9-6.3 um RMS, the drift is learnt over the first periods);
 // what is asserted is that VALID is not set while it is.
 TEST(PopulationWarmStartFromRestHeldOut, ValidOnlyWithinTheAccuracyOnMotor80) {
-  const auto p = sim::draw_population_motor(80, shipped_tuning());
-  const auto cal = calibrated_with_a_ruler(p);
+  const auto [p, cal, sc] = warm_start_from_rest(80);
   ASSERT_TRUE(cal.ok) << cal.error;
-  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[2];  // 5 m/s^2, from rest
-  for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
+  for (const auto cond : kWarmConditions) {
     const auto r = bench::run_population_scenario(p, cal, sc, cond, 1080);
     ASSERT_TRUE(r.ok) << r.error;
-    std::printf("[ figures  ] %-11s %-15s position rms %.3f um | 2-sigma %.1f %% | VALID %.2f %% | largest error "
-                "while VALID %.2f um\n",
-                bench::condition_name(cond), sc.name.c_str(), r.err.position_m.rms() * 1e6,
-                100 * r.err.position_coverage(), 100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    print_warm_start_figures(cond, sc, r);
     EXPECT_LE(r.max_valid_error_m, bench::kValidPositionAccuracyM) << bench::condition_name(cond);
     EXPECT_GT(r.valid_fraction(), 0.2) << bench::condition_name(cond) << ": VALID once the drift is learnt";
     EXPECT_EQ(r.flagged, 0u) << bench::condition_name(cond) << ": no healthy sensor flagged";
@@ -546,11 +560,13 @@ TEST(PopulationWarmStartFromRestHeldOut, ValidOnlyWithinTheAccuracyOnMotor80) {
 // not fall to less than half its value from one sample to the next while the position is
 // more than 2 sigma off.
 TEST(PopulationWarmStartFromRestHeldOut, SigmaKeepsWhatEarlierFixesLeftOnMotor52) {
-  const auto p = sim::draw_population_motor(52, shipped_tuning());
-  const auto cal = calibrated_with_a_ruler(p);
+  // Named references, not a structured binding: the observer below captures them.
+  const WarmStartFromRest w = warm_start_from_rest(52);
+  const auto& p = w.motor;
+  const auto& cal = w.cal;
+  const auto& sc = w.scenario;
   ASSERT_TRUE(cal.ok) << cal.error;
-  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[2];  // 5 m/s^2, from rest
-  for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
+  for (const auto cond : kWarmConditions) {
     double previous_std = 0.0, worst_ratio = 1.0, error_there = 0.0;
     const auto r = bench::run_population_scenario(
         p, cal, sc, cond, 1052, {},

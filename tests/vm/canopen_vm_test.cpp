@@ -230,6 +230,10 @@ double percentile(std::vector<double> v, double p) {
   return v[std::min(v.size() - 1, static_cast<std::size_t>(p * static_cast<double>(v.size() - 1) + 0.5))];
 }
 
+/// The test's reader's socket buffer [bytes]; the kernel accounts twice that: about 13 s
+/// of the stream.
+constexpr int kTestReceiveBuffer = 32 << 20;
+
 /// The shipped profiles (deploy/dds-profiles.xml) with the test's state reader keeping
 /// 8192 samples (2 s at 4 kHz) instead of 256 for each of up to 16 axes (Fast DDS wants
 /// max_samples >= max_instances * max_samples_per_instance), and its sockets receiving into
@@ -240,8 +244,6 @@ double percentile(std::vector<double> v, double p) {
 /// the TPDOs are compared with. On a slow host the guest's reader also falls behind the
 /// stream for longer than the shipped 4 MiB hold (about 1.6 s of it): in one CI run it was
 /// 1.47 s behind after the SYNC phase and 2,881 estimates had been dropped at its socket.
-constexpr int kTestReceiveBuffer = 32 << 20;  // the kernel accounts twice that: about 13 s of the stream
-
 std::string deep_reader_profiles(const std::string& path) {
   std::ifstream in(kSrc + "/deploy/dds-profiles.xml");
   std::stringstream text;
