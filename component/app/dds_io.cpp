@@ -549,6 +549,10 @@ class StateWriter::Listener : public fdds::DataWriterListener {
   explicit Listener(StateWriter& w) : writer(w) {}
   void on_offered_deadline_missed(fdds::DataWriter* w, const fdds::OfferedDeadlineMissedStatus& s) override {
     // One call per report of one instance; slots are fixed before publishing starts.
+    if (writer.is_pacer(w, s.last_instance_handle)) {
+      writer.pacer_reports_.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
     for (auto& slot : writer.slots_) {
       if (slot->writer != w || slot->handle != s.last_instance_handle) continue;
       // A retired axis' instance is gone, but a writer whose deadline timer was set for
@@ -592,6 +596,12 @@ StateWriter::StateWriter(DdsContext& ctx, double deadline_ms) : ctx_(ctx), liste
   if (deadline_ms > 0) q.deadline().period = std::isinf(deadline_ms) ? eprosima::fastrtps::c_TimeInfinite
                                                                      : duration_ms(deadline_ms);
   no_data_sharing(q);
+  // VE_DDS_STATE_NO_PACER=1 (measurements only, docs/dds-interface.md): no pacing instance,
+  // so Fast DDS re-arms each writer's deadline timer once per tick, as before it existed.
+  if (const char* no_pacer = std::getenv("VE_DDS_STATE_NO_PACER"); no_pacer != nullptr && std::string(no_pacer) == "1") {
+    spdlog::warn("VE_DDS_STATE_NO_PACER=1: the state writers have no pacing instance (for measurements only)");
+    pacing_ = false;
+  }
   deadline_ms_ = to_ms(q.deadline().period);
   deadline_ns_ = static_cast<std::int64_t>(std::llround(deadline_ms_ * 1e6));
   qos_ = std::make_unique<fdds::DataWriterQos>(q);
@@ -639,7 +649,9 @@ std::vector<int> StateWriter::add_group(const std::vector<AxisName>& axes) {
   // per-instance limit, and max_samples is raised to hold it for every instance.
   fdds::DataWriterQos q = *qos_;
   auto& limits = q.resource_limits();
-  const auto n = static_cast<std::int32_t>(axes.size());
+  // One instance more than the axes for the pacing instance (below), when a deadline is offered.
+  const bool pacer = pacing_ && deadline_ns_ > 0;
+  const auto n = static_cast<std::int32_t>(axes.size()) + (pacer ? 1 : 0);
   if (limits.max_instances > 0 && limits.max_instances < n) limits.max_instances = n;
   if (q.history().kind == fdds::KEEP_LAST_HISTORY_QOS && q.history().depth > 0 &&
       (limits.max_samples_per_instance <= 0 || limits.max_samples_per_instance > q.history().depth))
@@ -654,6 +666,7 @@ std::vector<int> StateWriter::add_group(const std::vector<AxisName>& axes) {
       fdds::StatusMask::offered_deadline_missed() << fdds::StatusMask::publication_matched());
   if (w == nullptr) return {};
   writers_.push_back(w);
+  if (pacer) register_pacer(w, axes);
   std::vector<int> indices;
   for (auto& slot : added) {
     slot->writer = w;
@@ -661,6 +674,31 @@ std::vector<int> StateWriter::add_group(const std::vector<AxisName>& axes) {
     indices.push_back(static_cast<int>(slots_.size() - 1));
   }
   return indices;
+}
+
+void StateWriter::register_pacer(fdds::DataWriter* w, const std::vector<AxisName>& axes) {
+  // The pacing instance: registered and never written, so no reader ever hears of it.
+  // Its key is one no axis of this writer has (readers never see it, so only this
+  // writer's axes matter).
+  std::uint32_t id = 0xFFFFFFFFu;
+  while (std::any_of(axes.begin(), axes.end(), [&](const AxisName& a) { return a.axis_id == id; })) --id;
+  ve::dds::EncoderState key{};
+  key.axis_id(id);
+  const auto handle = w->register_instance(&key);
+  if (handle == eprosima::fastrtps::rtps::c_InstanceHandle_Unknown) {
+    // Without it the writer re-arms its deadline timer as it did before (once per tick).
+    spdlog::debug("state writer: the pacing instance could not be registered; the deadline timer is re-armed per tick");
+    return;
+  }
+  std::lock_guard<std::mutex> lock(pacers_mutex_);
+  pacers_.push_back({w, handle});
+}
+
+bool StateWriter::is_pacer(const fdds::DataWriter* w, const eprosima::fastrtps::rtps::InstanceHandle_t& h) const {
+  std::lock_guard<std::mutex> lock(pacers_mutex_);
+  for (const auto& p : pacers_)
+    if (p.writer == w && p.handle == h) return true;
+  return false;
 }
 
 int StateWriter::add_axis(std::uint32_t axis_id, const std::string& name) {

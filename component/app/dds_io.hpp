@@ -14,6 +14,8 @@
 #include <string>
 #include <vector>
 
+#include <fastdds/rtps/common/InstanceHandle.h>
+
 #include "VirtualEncoder.h"
 
 namespace eprosima::fastdds::dds {
@@ -209,11 +211,31 @@ class StateWriter {
   std::uint64_t deadline_missed(std::uint32_t axis_id) const;
   /// Readers matched with the groups' writers (the most any one of them has).
   int matched_readers() const;
+  /// Before add_group: whether each writer gets a pacing instance (on by default; off for
+  /// measurements only). Fast DDS 2.9 re-arms a writer's deadline timer at a write of the
+  /// instance whose deadline comes first; an instance registered and never written is
+  /// that instance, so the timer is re-armed about once per period instead of once per
+  /// tick, and fires for it every period, which is not counted as a miss
+  /// (docs/dds-interface.md, "What an offered deadline costs"). The environment variable
+  /// VE_DDS_STATE_NO_PACER=1 turns it off for a whole process (measurements only).
+  void set_pacing(bool on) { pacing_ = on; }
+  /// Fast DDS's deadline reports of the pacing instances (not misses of any axis).
+  std::uint64_t pacer_reports() const { return pacer_reports_.load(); }
 
  private:
   class Listener;
   friend class Listener;
   struct Slot;
+  struct Pacer {
+    const eprosima::fastdds::dds::DataWriter* writer = nullptr;
+    eprosima::fastrtps::rtps::InstanceHandle_t handle;
+  };
+  void register_pacer(eprosima::fastdds::dds::DataWriter* w, const std::vector<AxisName>& axes);
+  bool is_pacer(const eprosima::fastdds::dds::DataWriter* w, const eprosima::fastrtps::rtps::InstanceHandle_t& h) const;
+  bool pacing_ = true;
+  mutable std::mutex pacers_mutex_;
+  std::vector<Pacer> pacers_;
+  std::atomic<std::uint64_t> pacer_reports_{0};
   void note_write(Slot& slot);
   void count_missed(Slot& slot, std::uint64_t periods, std::int64_t now_ns);
   DdsContext& ctx_;

@@ -263,7 +263,7 @@ int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<
       {"bare: one writer, fixed order", "bare-fixed"},     {"bare: one writer, alternating", "bare-alt"},
       {"bare: writer per axis", "bare-per-axis"},          {"bare: no deadline", "bare-none"},
       {"`run`: writer per sample thread", "run-group"},    {"`run`: writer per axis", "run-per-axis"},
-      {"`run`: no deadline", "run-none"},
+      {"`run`: no deadline", "run-none"},          {"`run`: writer per sample thread, no pacing instance", "run-no-pacer"},
   };
   struct Row {
     int n;
@@ -290,6 +290,8 @@ int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<
       if (c.key == "run-group") r.m.push_back(measure(run(group), false, tag));
       if (c.key == "run-per-axis") r.m.push_back(measure(run(per_axis), false, tag));
       if (c.key == "run-none") r.m.push_back(measure(run(group), false, tag, {{"VE_DDS_STATE_NO_DEADLINE", "1"}}));
+      if (c.key == "run-no-pacer")
+        r.m.push_back(measure(run(group), false, tag, {{"VE_DDS_STATE_NO_PACER", "1"}}));
     }
     rows.push_back(r);
   }
@@ -312,10 +314,10 @@ int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<
     for (const auto& c : columns) md << " " << c.head << " |";
     md << " " << what << "\n|---:|---:|";
     for (std::size_t i = 0; i < columns.size(); ++i) md << "---:|";
-    md << (what[0] ? "---:|---:|\n" : "\n");
+    md << (what[0] ? "---:|---:|---:|\n" : "\n");
   };
   char b[128];
-  head("`run` per thread / bare fixed | `run` per thread / floor |");
+  head("`run` per thread / bare fixed | `run` per thread / bare, no deadline | `run` per thread / floor |");
   for (const auto& r : rows) {
     md << "| " << r.n << " | ";
     std::snprintf(b, sizeof b, "%.1f %%", floor1.cpu_pct);
@@ -324,7 +326,8 @@ int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<
       std::snprintf(b, sizeof b, " %.1f %% |", m.cpu_pct);
       md << b;
     }
-    std::snprintf(b, sizeof b, " %.2f | %.2f |\n", r.m[4].cpu_pct / r.m[0].cpu_pct, r.m[4].cpu_pct / floor1.cpu_pct);
+    std::snprintf(b, sizeof b, " %.2f | %.2f | %.2f |\n", r.m[4].cpu_pct / r.m[0].cpu_pct,
+                  r.m[4].cpu_pct / r.m[3].cpu_pct, r.m[4].cpu_pct / floor1.cpu_pct);
     md << b;
   }
   md << "\nVoluntary context switches per second of the publisher's threads other than the pacing thread(s)"
