@@ -163,8 +163,9 @@ struct DeadlineCounters {
 /// thread. Why a group shares a writer: Fast DDS 2.9 re-arms a writer's offered-deadline
 /// timer (waking the participant's event thread) at every write of the instance whose
 /// deadline comes first, so N writers of one instance each re-arm N times per tick, one
-/// keyed writer written in alternating order (GroupWriteOrder) once
-/// (docs/dds-interface.md, "What an offered deadline costs").
+/// keyed writer written in alternating order (GroupWriteOrder) once; and each writer's
+/// pacing instance (set_pacing), whose deadline comes first, brings that down to about
+/// once per deadline period (docs/dds-interface.md, "What an offered deadline costs").
 class StateWriter {
  public:
   /// deadline_ms > 0 replaces the profile's offered deadline; <= 0 keeps the profile's
