@@ -180,10 +180,8 @@ std::uint64_t others_switches() {
   std::uint64_t n = 0;
   for (const auto& t : ve::test::tasks_of(getpid())) {
     if (t.dir.size() >= self.size() && t.dir.compare(t.dir.size() - self.size(), self.size(), self) == 0) continue;
-    const std::string status = ve::test::read_file(t.dir + "/status");
-    const auto p = status.find("voluntary_ctxt_switches:");
-    if (p != std::string::npos && (p == 0 || status[p - 1] == '\n'))
-      n += std::strtoull(status.c_str() + p + 24, nullptr, 10);
+    const long long switches = ve::test::voluntary_switches(t.dir);
+    if (switches > 0) n += static_cast<std::uint64_t>(switches);
   }
   return n;
 }

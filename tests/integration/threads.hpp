@@ -30,6 +30,16 @@ inline void task_sched(const std::string& task, int& policy, int& rt_priority) {
   }
 }
 
+/// Voluntary context switches of a task so far (proc(5) status, voluntary_ctxt_switches):
+/// how often it went to sleep, so how often it was woken; -1 when the task has gone.
+inline long long voluntary_switches(const std::string& task) {
+  std::istringstream in(read_file(task + "/status"));
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("voluntary_ctxt_switches:", 0) == 0) return std::stoll(line.substr(24));
+  return -1;
+}
+
 /// One thread of a process: its task directory, name, policy and real-time priority.
 struct Task {
   std::string dir, comm;

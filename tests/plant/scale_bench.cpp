@@ -16,8 +16,8 @@
 // each number of axes: the bare writer with one keyed writer written in a fixed order,
 // in alternating order, with one writer per axis and with no deadline; `run` with one
 // state writer per sample thread (the default), one per axis (dds.state_writer:
-// per_axis) and with no deadline (VE_DDS_STATE_NO_DEADLINE=1); next to the one-thread
-// floor. Besides CPU it counts the voluntary context switches of the publisher's threads
+// per_axis), with no deadline (VE_DDS_STATE_NO_DEADLINE=1) and without the state writers'
+// pacing instance (VE_DDS_STATE_NO_PACER=1); next to the one-thread floor. Besides CPU it counts the voluntary context switches of the publisher's threads
 // (/proc/PID/task/*/status), the pacing thread(s) apart from the others (Fast DDS's
 // event thread is woken by every re-arm of a deadline timer).
 //
@@ -48,6 +48,8 @@
 #include <vector>
 
 #include <yaml-cpp/yaml.h>
+
+#include "../integration/threads.hpp"
 
 namespace fs = std::filesystem;
 
@@ -130,17 +132,11 @@ TaskSwitches task_switches(pid_t pid) {
   std::error_code ec;
   for (const auto& e : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
     const int tid = std::atoi(e.path().filename().c_str());
-    std::ifstream comm_in(e.path() / "comm"), status_in(e.path() / "status");
-    std::string comm, line;
+    std::ifstream comm_in(e.path() / "comm");
+    std::string comm;
     std::getline(comm_in, comm);
-    unsigned long long n = 0;
-    bool have = false;
-    while (std::getline(status_in, line))
-      if (line.rfind("voluntary_ctxt_switches:", 0) == 0) {
-        n = std::stoull(line.substr(24));
-        have = true;
-      }
-    if (!have) continue;
+    const long long n = ve::test::voluntary_switches(e.path().string());
+    if (n < 0) continue;
     // The bare writer's other threads (Fast DDS's) inherit its main thread's name.
     const bool pacing = comm.rfind("ve-", 0) == 0 || (tid == pid && comm == "ve_bare_writer");
     (pacing ? t.pacing : t.other)[tid] = n;
@@ -250,7 +246,8 @@ double published(const std::string& out, const std::string& err) {
 /// for each number of axes, with the floor: the bare writer with one keyed writer written
 /// in one fixed order, in alternating order, one writer per axis, and no deadline; `run`
 /// with one writer per sample thread (dds.state_writer: per_group, the default), one
-/// writer per axis (per_axis), and no deadline (VE_DDS_STATE_NO_DEADLINE=1). No subscriber.
+/// writer per axis (per_axis), no deadline (VE_DDS_STATE_NO_DEADLINE=1), and one writer per
+/// sample thread without its pacing instance (VE_DDS_STATE_NO_PACER=1). No subscriber.
 template <class MeasureFn>
 int deadline_table(MeasureFn& measure, const Measure& floor1, const std::vector<int>& axis_counts, const fs::path& src,
                    const fs::path& dir, const std::string& d, const std::string& seconds, double window,
