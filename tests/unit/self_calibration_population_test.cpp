@@ -103,15 +103,21 @@ void check_positions(const ve::sim::PopulationMotor& p, const ve::core::Calibrat
   o.position_max_m = worst;
 }
 
-Outcome calibrate(std::uint64_t seed, const ve::core::FilterConfig& filter) {
-  Outcome o;
+/// Motor `seed`'s calibration run, recorded with the simulator's truth as the reference.
+bool record(std::uint64_t seed, const ve::sim::PopulationMotor& p, Outcome& o,
+            std::vector<ve::core::ReferenceSegment>& segments) {
   o.seed = seed;
-  const auto p = ve::sim::draw_population_motor(seed, filter);
   o.summary = p.summary();
   ve::sim::CalibrationRunConfig run;
   run.sweep_speed_mps = kSweepSpeedMps;
+  return ve::sim::record_calibration_run(p.hardware, p.sim, run, segments, o.error);
+}
+
+Outcome calibrate(std::uint64_t seed, const ve::core::FilterConfig& filter) {
+  Outcome o;
+  const auto p = ve::sim::draw_population_motor(seed, filter);
   std::vector<ve::core::ReferenceSegment> segments;
-  if (!ve::sim::record_calibration_run(p.hardware, p.sim, run, segments, o.error)) return o;
+  if (!record(seed, p, o, segments)) return o;
   for (auto& s : segments) s.reference_m.assign(s.reference_m.size(), std::nan(""));
   ve::core::SelfCalibrationConfig cfg;
   cfg.hall_delay_s = p.sim.imperfections.hall_delay_s;
@@ -145,6 +151,23 @@ Outcome calibrate(std::uint64_t seed, const ve::core::FilterConfig& filter) {
   } else {
     o.position_rms_m = o.position_max_m = std::nan("");
   }
+  return o;
+}
+
+/// The same motor calibrated with the simulator as its ruler, checked the same way:
+/// what its Halls allow at all (a few of the check's noiseless places can have no
+/// sensor out of saturation on a steep enough slope, whatever the table).
+Outcome calibrate_with_ruler(std::uint64_t seed, const ve::core::FilterConfig& filter) {
+  Outcome o;
+  const auto p = ve::sim::draw_population_motor(seed, filter);
+  std::vector<ve::core::ReferenceSegment> segments;
+  if (!record(seed, p, o, segments)) return o;
+  ve::core::Calibration cal;
+  ve::core::IdentificationReport rep;
+  o.ok = ve::core::identify_with_reference(p.datasheet, segments, {}, cal, rep, o.error);
+  if (!o.ok) return o;
+  o.good = rep.good;
+  check_positions(p, cal, 0.0, o);
   return o;
 }
 
@@ -211,7 +234,9 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
     EXPECT_TRUE(o.good) << (o.problems.empty() ? std::string() : o.problems.front());
     good += o.good ? 1 : 0;
     accurate += o.position_rms_m <= 2e-6 ? 1 : 0;
-    if (targets) EXPECT_LE(o.position_rms_m, 2e-6);
+    if (targets) {
+      EXPECT_LE(o.position_rms_m, 2e-6);
+    }
   }
   std::printf("[ summary  ] %zu motors: %zu calibrated, %d good, %d within 2 um RMS\n", all.size(),
               static_cast<std::size_t>(std::count_if(all.begin(), all.end(), [](const Outcome& o) { return o.ok; })),
@@ -260,14 +285,65 @@ TEST(SelfCalibrationPopulation, AnUnsettledFitToTheFastMotionIsNotBlamedOnTheSwe
   EXPECT_EQ(unsettled->find("record the sweep again"), std::string::npos) << *unsettled;
 }
 
-/// Motor 8 never settles to 0.05 um: from its 6th iteration on the estimate goes
-/// back and forth by 0.08 um RMS, which the verdict tolerates (unsettled_limit_m).
-/// Running on to the 12th only traded one of those neighbouring solutions for
-/// another, at 7 s of compute per metre of sweep. The iterations stop once the
-/// change has stopped shrinking twice in a row; the result is within that
-/// back-and-forth of the 12th iteration's, and as good.
+/// Motors 73 (4 Halls 5.1 mm apart on a 21 mm pitch) and 92 (3 Halls 2.6 mm apart on
+/// 9.5 mm), held out of the population the calibration was developed on, have Hall
+/// amplitudes of about 3.5 V about a 2.5 V mid on a 0..5 V converter: most of the
+/// time every sensor but one or two is on a rail. Tracked sample to sample, a solve
+/// from the extrapolated guess settled where a saturated sensor contradicted it, or
+/// found no slope, and the tracker went on from there: motor 73's sweep jumped by 7
+/// magnet periods within a slow pass and was refused; motor 92's second iteration
+/// ran off from the sweep's first sample (its table's least-sampled end) at 5 mm a
+/// sample, lost its forward pass and was refused. Such a sample is now searched for
+/// over the period about the guess with every sensor, the rails included, and
+/// bridged at the speed of the last fixes when it has no fix.
+TEST(SelfCalibrationPopulation, MotorsWhoseHallsMostlySaturateCalibrateWithoutAReference) {
+  const auto filter = tuning();
+  for (const std::uint64_t seed : {73, 92}) {
+    const Outcome o = calibrate(seed, filter);
+    SCOPED_TRACE(o.summary);
+    std::printf("[ motor    ] %s\n", o.summary.c_str());
+    ASSERT_TRUE(o.ok) << o.error;
+    EXPECT_TRUE(o.good) << (o.problems.empty() ? std::string() : o.problems.front());
+    EXPECT_LE(std::abs(o.accel_scale_rel_err), 0.001);
+    EXPECT_LE(std::abs(o.track_scale_true), 4.0 * o.track_scale_std);
+    // The table solves wherever the one a ruler makes does.
+    const Outcome r = calibrate_with_ruler(seed, filter);
+    ASSERT_TRUE(r.ok) << r.error;
+    EXPECT_LE(o.position_failed, r.position_failed);
+    std::printf("[ result   ] motor %llu: %.3f um RMS, %.3f um at most, %d of 997 places without a fix, "
+                "accelerometer scale %+.4f %%; with a ruler %.3f um RMS, %.3f um at most, %d without a fix\n",
+                static_cast<unsigned long long>(seed), o.position_rms_m * 1e6, o.position_max_m * 1e6,
+                o.position_failed, o.accel_scale_rel_err * 100.0, r.position_rms_m * 1e6, r.position_max_m * 1e6,
+                r.position_failed);
+  }
+}
+
+/// Motor 60 (magnets placed to 6 um, strengths alike to 0.0 %, held out) has a track
+/// with almost no signature: the fast motion scores within 0.05 % in neighbouring
+/// magnet periods of the table, and the choice went back and forth between two of
+/// them from one iteration to the next. That changed nothing of the result (the
+/// table repeats there), but the estimate moved by a whole period (6.7 mm RMS)
+/// each time, so the iterations never settled and the verdict was POOR. A segment
+/// now keeps its period unless another scores clearly (1 %) better.
+TEST(SelfCalibrationPopulation, ATrackWithoutASignatureStillSettles) {
+  const Outcome o = calibrate(60, tuning());
+  SCOPED_TRACE(o.summary);
+  for (const auto& l : o.iterations) std::printf("[ iteration] %s\n", l.c_str());
+  ASSERT_TRUE(o.ok) << o.error;
+  EXPECT_TRUE(o.good) << (o.problems.empty() ? std::string() : o.problems.front());
+  for (const auto& pr : o.problems) EXPECT_EQ(pr.find("did not settle"), std::string::npos) << pr;
+  EXPECT_EQ(o.position_failed, 0);
+}
+
+/// Motor 41 (held out) never settles to 0.05 um: from its 6th iteration on the
+/// estimate goes back and forth by 0.05 to 0.09 um RMS, which the verdict tolerates
+/// (unsettled_limit_m). Running on to the 12th only trades one of those neighbouring
+/// solutions for another. The iterations stop once the change has stopped shrinking
+/// twice in a row; the result is within that back-and-forth of the 12th iteration's,
+/// and as good. (This was motor 8, at 0.08 um, until a segment kept its magnet period
+/// on the table from one iteration to the next: motor 8 now converges in 5.)
 TEST(SelfCalibrationPopulation, IterationsGoingBackAndForthStopBelowTheToleratedLimit) {
-  const auto p = ve::sim::draw_population_motor(8, tuning());
+  const auto p = ve::sim::draw_population_motor(41, tuning());
   ve::sim::CalibrationRunConfig run;
   run.sweep_speed_mps = kSweepSpeedMps;
   std::vector<ve::core::ReferenceSegment> segments;
@@ -291,16 +367,38 @@ TEST(SelfCalibrationPopulation, IterationsGoingBackAndForthStopBelowTheTolerated
   EXPECT_TRUE(rep[1].stalled);
   EXPECT_LE(rep[1].iterations.size(), 9u);
   EXPECT_LE(rep[1].last_change_m, ve::core::SelfCalibrationConfig{}.unsettled_limit_m);
-  // Both tables on the same grid: the kept one moved by a fraction of a mV, i.e. of
-  // a micrometre on this motor's slopes (about 2 mV/um at its steepest).
+  // What the kept calibration reads against the one run on: the Hall position each
+  // table gives on the same noiseless readings, at places spread over the travel,
+  // differs by less than the back-and-forth the verdict tolerates.
   ASSERT_EQ(cal[0].table.v.size(), cal[1].table.v.size());
-  double sq = 0.0;
-  for (std::size_t i = 0; i < cal[0].table.v.size(); ++i)
-    sq += (cal[0].table.v[i] - cal[1].table.v[i]) * (cal[0].table.v[i] - cal[1].table.v[i]);
-  const double rms_v = std::sqrt(sq / static_cast<double>(cal[0].table.v.size()));
-  std::printf("[ stalled  ] %zu iterations instead of 12; table moved %.4f mV RMS, home by %.4f um\n",
-              rep[1].iterations.size(), rms_v * 1e3, (cal[1].table.start_m - cal[0].table.start_m) * 1e6);
-  EXPECT_LE(rms_v, 0.1e-3);
+  ve::sim::SimSource sim(p.hardware, truth_config(p));
+  const ve::core::HallArray array0(p.datasheet, cal[0].table), array1(p.datasheet, cal[1].table);
+  const double home = ve::test::home_truth_m(p.hardware, truth_config(p), rep[0]);
+  ASSERT_TRUE(std::isfinite(home));
+  const int n = p.datasheet.hall.count;
+  double sum = 0.0, sq = 0.0, worst = 0.0;
+  int compared = 0;
+  for (int k = 0; k < 997; ++k) {
+    const double x = p.datasheet.travel_m * (k + 0.5) / 997.0;
+    ve::core::RawSample s;
+    s.hall_count = n;
+    s.hall_valid_mask = (1u << n) - 1u;
+    for (int i = 0; i < n; ++i)
+      s.hall_v[static_cast<std::size_t>(i)] =
+          std::clamp(sim.hall_voltage_noiseless(i, x), p.datasheet.adc.min_v, p.datasheet.adc.max_v);
+    const auto f0 = array0.solve(s, x - home), f1 = array1.solve(s, x - home);
+    if (!f0.ok || !f1.ok) continue;
+    const double d = f1.position_m - f0.position_m;
+    sum += d, sq += d * d, worst = std::max(worst, std::abs(d)), ++compared;
+  }
+  ASSERT_GT(compared, 900);
+  // About their mean: that is the two homes' difference, judged on its own below.
+  const double mean_m = sum / compared;
+  const double rms_m = std::sqrt(std::max(0.0, sq / compared - mean_m * mean_m));
+  std::printf("[ stalled  ] %zu iterations instead of 12; positions differ by %.3f um RMS about their mean "
+              "%.3f um, %.3f um at most, home by %.4f um\n",
+              rep[1].iterations.size(), rms_m * 1e6, mean_m * 1e6, worst * 1e6, (cal[1].table.start_m - cal[0].table.start_m) * 1e6);
+  EXPECT_LE(rms_m, ve::core::SelfCalibrationConfig{}.unsettled_limit_m);
   EXPECT_LE(std::abs(cal[1].table.start_m - cal[0].table.start_m), 0.5e-6);
 }
 
