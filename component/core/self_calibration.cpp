@@ -61,8 +61,8 @@ double differential_chi2(const HallTable& t, const RawSample& s, double common_m
 /// place a saturated sensor contradicts, or find no slope at all. Such a sample is
 /// searched for instead over the magnet period about the guess, with every sensor
 /// (the saturated ones' rails included), as at start-up. A sample that still has no
-/// fix is bridged at the speed of the last fixes over kTrackSpeedSamples: the last
-/// two alone, near a flat top of the field, can be tens of um apart.
+/// fix is bridged from the last fix at the speed over the kTrackSpeedSamples up to
+/// it: the last two fixes alone, near a flat top of the field, can be tens of um apart.
 constexpr std::size_t kTrackSpeedSamples = 16;
 
 void track_positions(const HallArray& array, const std::vector<RawSample>& s, const std::vector<double>& common_mode,

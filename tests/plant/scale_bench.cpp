@@ -17,7 +17,8 @@
 // in alternating order, with one writer per axis and with no deadline; `run` with one
 // state writer per sample thread (the default), one per axis (dds.state_writer:
 // per_axis), with no deadline (VE_DDS_STATE_NO_DEADLINE=1) and without the state writers'
-// pacing instance (VE_DDS_STATE_NO_PACER=1); next to the one-thread floor. Besides CPU it counts the voluntary context switches of the publisher's threads
+// pacing instance (VE_DDS_STATE_NO_PACER=1); next to the one-thread floor. Besides CPU it
+// counts the voluntary context switches of the publisher's threads
 // (/proc/PID/task/*/status), the pacing thread(s) apart from the others (Fast DDS's
 // event thread is woken by every re-arm of a deadline timer).
 //

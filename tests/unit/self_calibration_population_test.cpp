@@ -71,21 +71,30 @@ ve::sim::SimConfig truth_config(const ve::sim::PopulationMotor& p) {
   return cfg;
 }
 
+/// The places a calibration is checked at, spread over the travel: kCheckPlaces of
+/// them (not a multiple of anything the pitch is), place k at check_place(motor, k).
+constexpr int kCheckPlaces = 997;
+double check_place(const ve::core::MotorConfig& m, int k) { return m.travel_m * (k + 0.5) / kCheckPlaces; }
+
+/// Every sensor's noiseless reading at simulator position x, as the converter clips it.
+ve::core::RawSample noiseless_sample(const ve::sim::SimSource& sim, const ve::core::MotorConfig& m, double x) {
+  ve::core::RawSample s;
+  s.hall_count = m.hall.count;
+  s.hall_valid_mask = (1u << m.hall.count) - 1u;
+  for (int i = 0; i < m.hall.count; ++i)
+    s.hall_v[static_cast<std::size_t>(i)] = std::clamp(sim.hall_voltage_noiseless(i, x), m.adc.min_v, m.adc.max_v);
+  return s;
+}
+
 void check_positions(const ve::sim::PopulationMotor& p, const ve::core::Calibration& cal, double home, Outcome& o) {
   ve::sim::SimSource sim(p.hardware, truth_config(p));
   const ve::core::HallArray array(p.datasheet, cal.table);
   const auto& m = p.datasheet;
-  const int n = m.hall.count;
-  constexpr int kPoints = 997;  // not a multiple of anything the pitch is
   double sum = 0.0, sum2 = 0.0, worst = 0.0;
   int used = 0;
-  for (int k = 0; k < kPoints; ++k) {
-    const double x = m.travel_m * (k + 0.5) / kPoints;
-    ve::core::RawSample s;
-    s.hall_count = n;
-    s.hall_valid_mask = (1u << n) - 1u;
-    for (int i = 0; i < n; ++i)
-      s.hall_v[static_cast<std::size_t>(i)] = std::clamp(sim.hall_voltage_noiseless(i, x), m.adc.min_v, m.adc.max_v);
+  for (int k = 0; k < kCheckPlaces; ++k) {
+    const double x = check_place(m, k);
+    const ve::core::RawSample s = noiseless_sample(sim, m, x);
     const double truth = x - home;
     const auto fix = array.solve(s, truth);
     if (!fix.ok) {
@@ -310,11 +319,11 @@ TEST(SelfCalibrationPopulation, MotorsWhoseHallsMostlySaturateCalibrateWithoutAR
     const Outcome r = calibrate_with_ruler(seed, filter);
     ASSERT_TRUE(r.ok) << r.error;
     EXPECT_LE(o.position_failed, r.position_failed);
-    std::printf("[ result   ] motor %llu: %.3f um RMS, %.3f um at most, %d of 997 places without a fix, "
+    std::printf("[ result   ] motor %llu: %.3f um RMS, %.3f um at most, %d of %d places without a fix, "
                 "accelerometer scale %+.4f %%; with a ruler %.3f um RMS, %.3f um at most, %d without a fix\n",
                 static_cast<unsigned long long>(seed), o.position_rms_m * 1e6, o.position_max_m * 1e6,
-                o.position_failed, o.accel_scale_rel_err * 100.0, r.position_rms_m * 1e6, r.position_max_m * 1e6,
-                r.position_failed);
+                o.position_failed, kCheckPlaces, o.accel_scale_rel_err * 100.0, r.position_rms_m * 1e6,
+                r.position_max_m * 1e6, r.position_failed);
   }
 }
 
@@ -375,17 +384,11 @@ TEST(SelfCalibrationPopulation, IterationsGoingBackAndForthStopBelowTheTolerated
   const ve::core::HallArray array0(p.datasheet, cal[0].table), array1(p.datasheet, cal[1].table);
   const double home = ve::test::home_truth_m(p.hardware, truth_config(p), rep[0]);
   ASSERT_TRUE(std::isfinite(home));
-  const int n = p.datasheet.hall.count;
   double sum = 0.0, sq = 0.0, worst = 0.0;
   int compared = 0;
-  for (int k = 0; k < 997; ++k) {
-    const double x = p.datasheet.travel_m * (k + 0.5) / 997.0;
-    ve::core::RawSample s;
-    s.hall_count = n;
-    s.hall_valid_mask = (1u << n) - 1u;
-    for (int i = 0; i < n; ++i)
-      s.hall_v[static_cast<std::size_t>(i)] =
-          std::clamp(sim.hall_voltage_noiseless(i, x), p.datasheet.adc.min_v, p.datasheet.adc.max_v);
+  for (int k = 0; k < kCheckPlaces; ++k) {
+    const double x = check_place(p.datasheet, k);
+    const ve::core::RawSample s = noiseless_sample(sim, p.datasheet, x);
     const auto f0 = array0.solve(s, x - home), f1 = array1.solve(s, x - home);
     if (!f0.ok || !f1.ok) continue;
     const double d = f1.position_m - f0.position_m;
