@@ -282,6 +282,21 @@ CommandLine parse_command_line(int argc, const char* const* argv) {
           ->check(number(0, 10000, "us"))
           ->type_name("US");
   hall_delay->excludes(accel_delay);
+  auto* thermal = cal_cmd->add_flag(
+      "--thermal", cal.thermal,
+      "Thermal calibration: add each Hall sensor's temperature coefficients to the existing calibration, from a "
+      "calibration run recorded 5 K or more warmer or colder (--log, or live on the simulator)");
+  auto* sim_rise = cal_cmd->add_option("--sim-temperature-rise", cal.sim_temperature_rise_k,
+                                       "With --thermal, live on the simulator: how much warmer its motor runs")
+                       ->check(number(-40, 40, "K"))
+                       ->type_name("K")
+                       ->capture_default_str();
+  sim_rise->needs(thermal);
+  sim_rise->excludes(cal_log);
+  thermal->excludes(hall_delay);
+  thermal->excludes(accel_delay);
+  thermal->excludes("--force");
+  thermal->excludes("--no-reference");
   (void)cal_log;
   cal_cmd->footer(env_footer(""));
 

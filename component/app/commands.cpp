@@ -33,6 +33,7 @@
 #include "core/status.hpp"
 #include "core/identification.hpp"
 #include "core/self_calibration.hpp"
+#include "core/thermal_calibration.hpp"
 #include "dds_io.hpp"
 #include "realtime.hpp"
 #include "reports.hpp"
@@ -892,6 +893,96 @@ int check_command(const CheckOptions& options) {
 
 // ------------------------------------------------------------------- calibrate
 
+/// calibrate --thermal: the axis' calibration (at `out`) gains each Hall sensor's
+/// temperature coefficients, fitted from a calibration run recorded some kelvin away
+/// from it (a log, or live on the simulator run that much warmer). The table and the
+/// rest of the sensor model are kept as they are.
+template <class Progress>
+static int thermal_calibrate(const CalibrateOptions& options, const config::AxisConfig& axis, const std::string& out,
+                             Progress& progress, bool tty) {
+  const auto base = config::load_calibration_file(out, axis.motor);
+  if (!base.ok()) {
+    std::fprintf(stderr, "%s\nthermal calibration needs the axis' calibration first (calibrate without --thermal)\n",
+                 config::to_string(base.errors).c_str());
+    return 2;
+  }
+  std::vector<core::ReferenceSegment> segments;
+  std::string error;
+  if (!options.log.empty()) {
+    bool has_reference = false;
+    if (!read_calibration_log_any(options.log, axis.motor.hall.count, segments, has_reference, error)) {
+      if (termination_requested()) return interrupted("reading the thermal recording");
+      std::fprintf(stderr, "%s\n", error.c_str());
+      return 2;
+    }
+    if (!has_reference)
+      std::fprintf(stderr, "%s has no ref_position_m column: positions from the Hall array itself\n",
+                   options.log.c_str());
+  } else {
+    sim::SimConfig sim = axis.driver.sim;
+    sim.temperature.profile = sim::TemperatureConfig::Profile::constant;
+    sim.temperature.offset_k += options.sim_temperature_rise_k;
+    sim.temperature.delta_k = 0.0;
+    sim::CalibrationRunConfig run;
+    run.sweep_speed_mps = options.sweep_speed_mps;
+    run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
+    if (!sim::record_calibration_run(axis.motor, sim, run, segments, error,
+                                     [&](double f) { progress("recording", f); }, &termination_flag())) {
+      if (termination_requested()) return interrupted("the thermal calibration run");
+      std::fprintf(stderr, "\nthermal calibration run failed: %s\n", error.c_str());
+      return 1;
+    }
+    if (tty) std::fprintf(stderr, "\n");
+  }
+  if (termination_requested()) return interrupted("the thermal calibration run");
+  core::Calibration cal = base.calibration;
+  core::ThermalCalibrationReport report;
+  if (!core::fit_thermal_coefficients(axis.motor, base.calibration, segments, {}, cal.model, report, error)) {
+    std::fprintf(stderr, "thermal calibration failed%s%s: %s\n", options.log.empty() ? "" : ": ",
+                 options.log.c_str(), error.c_str());
+    return 1;
+  }
+  config::stamp_calibration(cal);
+  std::string text;
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "thermal calibration of axis '%s' (motor %s): the recording is %+.2f K from the calibration (%s), "
+                "the sensors' common gain %+.3f %%%s\n",
+                axis.name.c_str(), axis.motor.name.c_str(), report.rise_k,
+                report.rise_reported ? "the sensor node's temperature" : "read from the sensors' common gain",
+                100.0 * report.common_gain, "");
+  text += buf;
+  if (std::isfinite(cal.model.common_tc_per_k)) {
+    std::snprintf(buf, sizeof buf, "  common gain %+.4f %%/K (+-%.1f %%)\n", 100.0 * cal.model.common_tc_per_k,
+                  100.0 * cal.model.common_tc_rel_std);
+    text += buf;
+  }
+  for (int i = 0; i < axis.motor.hall.count && i < core::kMaxHalls; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    std::snprintf(buf, sizeof buf,
+                  "  sensor %d: offset %+.4f +- %.4f mV/K, gain %+.4f +- %.4f %%/K (readings %d, residual %.2f mV)\n", i,
+                  1e3 * cal.model.hall_offset_tc_v_per_k[k], 1e3 * cal.model.hall_offset_tc_std_v_per_k[k],
+                  100.0 * cal.model.hall_gain_tc_per_k[k], 100.0 * cal.model.hall_gain_tc_std_per_k[k],
+                  report.samples[k], 1e3 * report.residual_v[k]);
+    text += buf;
+  }
+  for (const auto& n : report.notes) text += "  note: " + n + "\n";
+  if (termination_requested()) return interrupted("the thermal calibration");
+  if (!config::write_calibration_file_atomic(out, cal, error)) {
+    std::printf("%s", text.c_str());
+    std::fprintf(stderr, "calibration NOT written: %s\n", error.c_str());
+    return 1;
+  }
+  const std::string report_path = out + ".thermal.txt";
+  const bool report_written = write_text_file_atomic(report_path, text, error);
+  if (!report_written) std::fprintf(stderr, "report NOT written: %s\n", error.c_str());
+  std::printf("%s", text.c_str());
+  std::printf("calibration %s (with the thermal coefficients) written to %s", cal.info.id.c_str(), out.c_str());
+  if (report_written) std::printf(" (report: %s)", report_path.c_str());
+  std::printf("\n");
+  return report_written ? 0 : 1;
+}
+
 int calibrate_command(const CalibrateOptions& options) {
   config::MachineConfig machine;
   // The calibration file is what this command writes: it need not exist yet.
@@ -930,6 +1021,8 @@ int calibrate_command(const CalibrateOptions& options) {
     std::fprintf(stderr, "\r%-10s [%-50s] %3d%%", phase, std::string(static_cast<std::size_t>(percent / 2), '#').c_str(),
                  percent);
   };
+
+  if (options.thermal) return thermal_calibrate(options, axis, out, progress, tty);
 
   // The motion: a slow sweep over the whole travel and back, then fast multisine
   // motion; the simulator's exact position plays the reference ruler (unless

@@ -41,6 +41,11 @@ struct CalibrateOptions {
   /// Without a reference, one absolute delay must come from the hardware's design [us]; NaN: not given.
   double hall_delay_us = std::numeric_limits<double>::quiet_NaN();
   double accel_delay_us = std::numeric_limits<double>::quiet_NaN();
+  /// Thermal calibration: each Hall sensor's temperature coefficients, from a
+  /// recording some kelvin away from the existing calibration, added to it.
+  bool thermal = false;
+  /// Live thermal calibration on the simulator: how much warmer its motor runs [K].
+  double sim_temperature_rise_k = 15.0;
 };
 int calibrate_command(const CalibrateOptions& options);
 

@@ -224,6 +224,49 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     }
     model("table_outside_std_m", cal.model.table_outside_std_m, 0.0, 0.01, "m");
   }
+  {
+    // Optional: only after a thermal calibration (thermal_calibration.hpp).
+    if (root.has("thermal")) {
+      Map t = root.map("thermal");
+      auto& m = cal.model;
+      m.thermal_known = true;
+      if (t.require("rise_k", m.thermal_rise_k) && !(std::abs(m.thermal_rise_k) >= 1.0 && std::abs(m.thermal_rise_k) <= 100.0))
+        t.value("rise_k").error(schema::compact_number(m.thermal_rise_k) +
+                                " K: a thermal calibration is made 1 to 100 K from the calibration, either way");
+      const bool tc = t.get("common_tc_per_k", m.common_tc_per_k);
+      const bool tc_std = t.get("common_tc_rel_std", m.common_tc_rel_std);
+      if (tc != tc_std)
+        t.value(tc ? "common_tc_per_k" : "common_tc_rel_std")
+            .error(std::string("needs thermal.") + (tc ? "common_tc_rel_std" : "common_tc_per_k") + " too");
+      if (tc && !(std::abs(m.common_tc_per_k) <= 0.05))
+        t.value("common_tc_per_k").error(schema::out_of_range(m.common_tc_per_k, -0.05, 0.05, "1/K"));
+      if (tc_std && !(m.common_tc_rel_std >= 0.0 && m.common_tc_rel_std <= 1.0))
+        t.value("common_tc_rel_std").error(schema::out_of_range(m.common_tc_rel_std, 0.0, 1.0, ""));
+      // One number per sensor, each list as long as the motor has sensors.
+      const auto per_sensor = [&](const char* key, std::array<double, core::kMaxHalls>& out, double lo, double hi,
+                                  const char* unit) {
+        const Value v = t.required(key);
+        std::vector<double> list;
+        if (!v.present() || !v.as(list)) return;
+        if (info.hall_count > 0 && list.size() != static_cast<std::size_t>(info.hall_count)) {
+          v.error(std::string(kCorrupt) + std::to_string(list.size()) + " values but hall_count is " +
+                  std::to_string(info.hall_count));
+          return;
+        }
+        for (std::size_t i = 0; i < list.size() && i < out.size(); ++i) {
+          if (!(list[i] >= lo && list[i] <= hi)) {
+            v.error("sensor " + std::to_string(i) + ": " + schema::out_of_range(list[i], lo, hi, unit));
+            return;
+          }
+          out[i] = list[i];
+        }
+      };
+      per_sensor("gain_tc_per_k", m.hall_gain_tc_per_k, -0.01, 0.01, "1/K");
+      per_sensor("gain_tc_std_per_k", m.hall_gain_tc_std_per_k, 0.0, 0.01, "1/K");
+      per_sensor("offset_tc_v_per_k", m.hall_offset_tc_v_per_k, -0.01, 0.01, "V/K");
+      per_sensor("offset_tc_std_v_per_k", m.hall_offset_tc_std_v_per_k, 0.0, 0.01, "V/K");
+    }
+  }
   const Value table = root.required("table");
   if (table.present()) read_table(table.as_map(), cal.table, info.hall_count, expected);
   // The checksum is compared whenever the table could be read, also when it is
@@ -401,6 +444,27 @@ std::string format_calibration(const core::Calibration& cal) {
       out += "  table_outside_std_m: " + schema::format_number(m.table_outside_std_m) +
              "   # beyond (the turnarounds) the table is good to this; never VALID there\n";
     }
+  }
+  if (cal.model.thermal_known) {
+    const core::SensorModel& m = cal.model;
+    out += "thermal:   # each Hall sensor's own temperature coefficients, from a thermal calibration\n";
+    out += "  rise_k: " + schema::format_number(m.thermal_rise_k) +
+           "   # the thermal recording was this much warmer than the calibration\n";
+    if (std::isfinite(m.common_tc_per_k)) {
+      out += "  common_tc_per_k: " + schema::format_number(m.common_tc_per_k) +
+             "   # the gain all sensors share, per K, as measured\n";
+      out += "  common_tc_rel_std: " + schema::format_number(m.common_tc_rel_std) + "\n";
+    }
+    const auto list = [&](const char* key, const std::array<double, core::kMaxHalls>& v, const char* comment) {
+      out += std::string("  ") + key + ": [";
+      for (int i = 0; i < cal.info.hall_count && i < core::kMaxHalls; ++i)
+        out += (i ? ", " : "") + schema::format_number(v[static_cast<std::size_t>(i)]);
+      out += std::string("]") + comment + "\n";
+    };
+    list("gain_tc_per_k", m.hall_gain_tc_per_k, "   # each sensor's gain beyond the common one [1/K]");
+    list("gain_tc_std_per_k", m.hall_gain_tc_std_per_k, "");
+    list("offset_tc_v_per_k", m.hall_offset_tc_v_per_k, "   # each sensor's offset [V/K]");
+    list("offset_tc_std_v_per_k", m.hall_offset_tc_std_v_per_k, "");
   }
   out += "table:\n";
   // Shortest round-trip form: the grid comes back bit-identical.

@@ -5,7 +5,7 @@
 
 namespace ve::core {
 
-HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
+HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s, const SensorModel* model)
     : enabled_(motor.filter.hall_adaptation),
       sensors_(std::min(motor.hall.count, kMaxHalls)),
       mid_v_(motor.hall.offset_v),
@@ -37,8 +37,28 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s)
   model_var_v2_ = f.hall_adaptation_model_std_v * f.hall_adaptation_model_std_v;
   common_tc_per_k_ = f.magnet_remanence_tc_per_k + f.hall_gain_tc_per_k;
   tc_rel_std_ = f.temperature_coefficient_rel_std;
-  gain_tc_std_ = f.hall_gain_tc_std_per_k;
-  offset_tc_std_v_ = f.hall_offset_tc_std_v_per_k;
+  gain_tc_std_.fill(f.hall_gain_tc_std_per_k);
+  offset_tc_std_v_.fill(f.hall_offset_tc_std_v_per_k);
+  thermal_ = model != nullptr && model->thermal_known;
+  if (thermal_) {
+    if (std::isfinite(model->common_tc_per_k) && std::abs(model->common_tc_per_k) > 0.0) {
+      common_tc_per_k_ = model->common_tc_per_k;
+      if (std::isfinite(model->common_tc_rel_std)) tc_rel_std_ = model->common_tc_rel_std;
+    }
+    for (int i = 0; i < sensors_; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      gain_tc_[k] = model->hall_gain_tc_per_k[k];
+      offset_tc_v_[k] = model->hall_offset_tc_v_per_k[k];
+      gain_tc_std_[k] = model->hall_gain_tc_std_per_k[k];
+      offset_tc_std_v_[k] = model->hall_offset_tc_std_v_per_k[k];
+    }
+  }
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    unread_gain_var_ = std::max(unread_gain_var_, gain_tc_[k] * gain_tc_[k] + gain_tc_std_[k] * gain_tc_std_[k]);
+    unread_offset_var_ =
+        std::max(unread_offset_var_, offset_tc_v_[k] * offset_tc_v_[k] + offset_tc_std_v_[k] * offset_tc_std_v_[k]);
+  }
   temperature_alpha_ = 1.0 - std::exp(-ts_s / kTemperatureAverageS);
   infer_decay_ = std::exp(-ts_s / kInferAverageS);
   infer_first_samples_ = static_cast<std::uint64_t>(std::ceil(kInferFirstS / ts_s));
@@ -77,10 +97,27 @@ void HallAdaptation::widen_for_rise(double from_k, double to_k) {
   }
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    pgg(i) = std::min(pgg(i) + gain_tc_std_ * gain_tc_std_ * d2, limit2);
-    pdd(i) += offset_tc_std_v_ * offset_tc_std_v_ * d2;
-    look_gg_[k] = std::min(look_gg_[k] + gain_tc_std_ * gain_tc_std_ * d2_published, limit2);
-    look_dd_[k] += offset_tc_std_v_ * offset_tc_std_v_ * d2_published;
+    const double sg2 = gain_tc_std_[k] * gain_tc_std_[k], sd2 = offset_tc_std_v_[k] * offset_tc_std_v_[k];
+    pgg(i) = std::min(pgg(i) + sg2 * d2, limit2);
+    pdd(i) += sd2 * d2;
+    look_gg_[k] = std::min(look_gg_[k] + sg2 * d2_published, limit2);
+    look_dd_[k] += sd2 * d2_published;
+  }
+}
+
+void HallAdaptation::follow_rise(double to_k) {
+  // A thermal calibration measured each sensor's own coefficients: the rise moves
+  // its gain and offset by them (a prediction, what the learning then corrects),
+  // and widen_for_rise widens by what the coefficients leave, not by their spread.
+  if (!thermal_ || !std::isfinite(to_k)) return;
+  const double d = to_k - followed_k_;
+  followed_k_ = to_k;
+  const double level = std::max(hi_v_ - mid_v_, mid_v_ - lo_v_);
+  for (int i = 0; i < sensors_; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    move_sensor(i, gain_tc_[k] * d, offset_tc_v_[k] * d);
+    const double dv = std::abs(offset_tc_v_[k] * d) + std::abs(gain_tc_[k] * d) * level;
+    moved_v2_ = std::max(moved_v2_, dv * dv);
   }
 }
 
@@ -103,10 +140,12 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   infer_w_ = infer_decay_ * infer_w_ + w;
   if (++infer_samples_ < infer_first_samples_) return;
   // The coefficients are known to tc_rel_std: the rise they imply, as far as it may be.
-  const double rise_k = infer_wg_ / infer_w_ / common_tc_per_k_ * std::sqrt(1.0 + tc_rel_std_ * tc_rel_std_);
+  const double read_k = infer_wg_ / infer_w_ / common_tc_per_k_;
+  const double rise_k = read_k * std::sqrt(1.0 + tc_rel_std_ * tc_rel_std_);
   if (!inferred_started_) {
     inferred_started_ = true;
     inferred_k_ = rise_k;
+    follow_rise(read_k);
     widen_for_rise(0.0, rise_k);
     return;
   }
@@ -114,6 +153,7 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   // step widening by what it allows (what was learnt in between stays learnt).
   const double d = rise_k - inferred_k_;
   if (std::abs(d) < 0.25) return;
+  follow_rise(read_k);
   widen_for_rise(inferred_k_, rise_k);
   inferred_k_ = rise_k;
 }
@@ -156,6 +196,7 @@ void HallAdaptation::temperature(double delta_k) {
     p_common_ = std::min(p0_gg_ + sd * sd + sd_reading * sd_reading, limit2);
     // Each sensor's spread for this rise; a reading's own error (kReadingStdK) moves
     // a sensor by far less than the start-up prior already allows for.
+    follow_rise(delta_k);
     widen_for_rise(0.0, delta_k);
     return;
   }
@@ -169,6 +210,7 @@ void HallAdaptation::temperature(double delta_k) {
   const double dg = common_tc_per_k_ * d;
   common_gain_ = std::clamp((1.0 + common_gain_) * (1.0 + dg) - 1.0, -gain_limit_, gain_limit_);
   p_common_ = std::min(p_common_ + tc_rel_std_ * tc_rel_std_ * dg * dg, limit2);
+  follow_rise(temperature_k_);
   widen_for_rise(from_k, temperature_k_);
 }
 

@@ -55,7 +55,10 @@ class HallAdaptation {
   /// A sample counts as a new place once the carriage has moved this share of a
   /// magnet period since the last one (the `share` the updates take).
   static constexpr double kNewPlaceShareOfPitch = 1.0 / 200.0;
-  HallAdaptation(const MotorConfig& motor, double ts_s);
+  /// `model`, when given, may hold each sensor's own temperature coefficients from
+  /// a thermal calibration (SensorModel::thermal_known): the sensors then follow a
+  /// change of temperature by them instead of only widening by the data sheet's spread.
+  HallAdaptation(const MotorConfig& motor, double ts_s, const SensorModel* model = nullptr);
 
   /// The readings corrected to the calibration's conditions: out = in with each
   /// Hall reading mapped back through its gain and offset (rail readings, which
@@ -106,6 +109,16 @@ class HallAdaptation {
   double residual(const RawSample& raw, const HallTable& table, int i, double x_m, double common_mode_v,
                   double& std_v) const;
 
+  /// What the thermal coefficients moved the sensors' readings by since the last
+  /// call (follow_rise), as the square of the largest change of one reading [V^2],
+  /// and resets it: a step of the model, not of the carriage, which the filter
+  /// should take in its position, not its velocity.
+  double take_moved_v2() {
+    const double v = moved_v2_;
+    moved_v2_ = 0.0;
+    return v;
+  }
+
   bool enabled() const { return enabled_; }
   /// Whether the estimator knows how far the motor's temperature is from the
   /// calibration's: reported by the node, or read from the fixes' common gain
@@ -128,9 +141,8 @@ class HallAdaptation {
                               double level_sensitivity_m2) const {
     const double common = common_tc_per_k_ * common_level_m;
     return rise_k * rise_k *
-           (common * common * (1.0 + tc_rel_std_ * tc_rel_std_) +
-            offset_tc_std_v_ * offset_tc_std_v_ * sensitivity_m2_per_v2 +
-            gain_tc_std_ * gain_tc_std_ * level_sensitivity_m2);
+           (common * common * (1.0 + tc_rel_std_ * tc_rel_std_) + unread_offset_var_ * sensitivity_m2_per_v2 +
+            unread_gain_var_ * level_sensitivity_m2);
   }
   /// Variance the adapted gain and offset leave in sensor i's corrected reading
   /// where its table reads `table_v` [V^2]; 0 when adaptation is off.
@@ -197,7 +209,21 @@ class HallAdaptation {
   double model_var_common_;           ///< the least variance one fix's common gain can have
   double model_var_v2_;               ///< the least variance one sample's residual has [V^2]
   double common_tc_per_k_;            ///< remanence + mean Hall sensitivity coefficient [1/K]
-  double tc_rel_std_, gain_tc_std_, offset_tc_std_v_;
+  double tc_rel_std_;
+  /// Per sensor, how far its own gain [1/K] and offset [V/K] may move per kelvin
+  /// beyond what is followed: the data sheet's spread, or with a thermal
+  /// calibration what its coefficients leave.
+  std::array<double, kMaxHalls> gain_tc_std_{}, offset_tc_std_v_{};
+  /// With a thermal calibration: each sensor's own coefficients, followed as the
+  /// rise changes (follow_rise), and the rise followed so far [K].
+  bool thermal_ = false;
+  std::array<double, kMaxHalls> gain_tc_{}, offset_tc_v_{};
+  double followed_k_ = 0.0;
+  double moved_v2_ = 0.0;
+  void follow_rise(double to_k);
+  /// A change of temperature not read moves a sensor by its coefficients (not
+  /// followed there) and their spread: the largest of the sensors', squared.
+  double unread_gain_var_ = 0.0, unread_offset_var_ = 0.0;
   static constexpr double kReadingStdK = 0.3;         ///< one reading of the node: noise and resolution [K]
   static constexpr double kTemperatureAverageS = 3.0; ///< the reading is averaged over about this long [s]
   double temperature_alpha_;

@@ -60,6 +60,18 @@ std::string calibration_checksum(const HallTable& table, const SensorModel& mode
     mix_rounded(model.table_trusted_to_m, 1e-9);
     mix_rounded(model.table_outside_std_m, 1e-10);
   }
+  if (model.thermal_known) {
+    mix_rounded(model.thermal_rise_k, 1e-6);
+    if (std::isfinite(model.common_tc_per_k)) mix_rounded(model.common_tc_per_k, 1e-12);
+    if (std::isfinite(model.common_tc_rel_std)) mix_rounded(model.common_tc_rel_std, 1e-9);
+    for (int i = 0; i < kMaxHalls; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      mix_rounded(model.hall_gain_tc_per_k[k], 1e-12);
+      mix_rounded(model.hall_gain_tc_std_per_k[k], 1e-12);
+      mix_rounded(model.hall_offset_tc_v_per_k[k], 1e-12);
+      mix_rounded(model.hall_offset_tc_std_v_per_k[k], 1e-12);
+    }
+  }
   static const char* kHex = "0123456789abcdef";
   std::string out(16, '0');
   for (int i = 15; i >= 0; --i) {

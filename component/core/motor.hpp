@@ -3,10 +3,13 @@
 // loader (component/config) knows YAML.
 #pragma once
 
+#include <array>
 #include <cmath>
 #include <limits>
 #include <string>
 #include <vector>
+
+#include "sample.hpp"
 
 namespace ve::core {
 
@@ -85,6 +88,27 @@ struct SensorModel {
   /// there removes it; in motion the filter averages it over the nodes it crosses. 0:
   /// not measured (older files), taken as nothing.
   double table_noise_v = 0.0;
+  /// Each Hall sensor's own temperature coefficients, measured by a thermal
+  /// calibration (thermal_calibration.hpp): a second recording of the motor some
+  /// kelvin away from this calibration, fitted against its table. Without them the
+  /// estimator knows only the data sheet's spread of the coefficients, and at
+  /// standstill a sensor's offset drift cannot be told from a position (at 10 K, a
+  /// few um); with them each sensor's gain and offset follow the rise the node
+  /// reports or the fixes' common gain reads (HallAdaptation). The rise is counted in
+  /// the kelvin of common_tc_per_k: the node's when the thermal recording reported a
+  /// temperature, else the data sheet's coefficient read through the common gain.
+  bool thermal_known = false;
+  /// The rise of the thermal recording over this calibration [K].
+  double thermal_rise_k = 0.0;
+  /// The gain all sensors share, per kelvin, as measured (NaN: the data sheet's
+  /// remanence + Hall sensitivity coefficients), and its relative uncertainty.
+  double common_tc_per_k = std::numeric_limits<double>::quiet_NaN();
+  double common_tc_rel_std = std::numeric_limits<double>::quiet_NaN();
+  /// Per sensor: its own gain change on top of the common one [1/K], its offset
+  /// change [V/K], and how well each is known, one sigma (the fit's own
+  /// uncertainty and how far a sensor may be from linear over the rise).
+  std::array<double, kMaxHalls> hall_gain_tc_per_k{}, hall_offset_tc_v_per_k{};
+  std::array<double, kMaxHalls> hall_gain_tc_std_per_k{}, hall_offset_tc_std_v_per_k{};
   bool trusted_span_known() const { return std::isfinite(table_trusted_from_m) && std::isfinite(table_trusted_to_m); }
 };
 

@@ -44,7 +44,7 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
       kf_(config.motor.sample_period_s(), config.motor.filter, config.sensors),
       homing_(config.motor.magnet_pitch_m, config.signature),
       period_ns_(static_cast<std::int64_t>(std::llround(1e9 / config.motor.sample_rate_hz))),
-      adapt_(config.motor, config.motor.sample_period_s()) {
+      adapt_(config.motor, config.motor.sample_period_s(), &config.sensors) {
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
   const int n = std::min(config.motor.hall.count, kMaxHalls);
@@ -396,6 +396,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     if (fix.ok && cfg_.signature_homing) signature_step(corrected_, guess, common_mode, use);
     // Without a temperature from the node, the common gain every fix sees is the
     // thermometer: how far the sensors may have drifted follows from it.
+    // A move of the sensors by their thermal coefficients (on a reported temperature,
+    // before this fix; on the fixes' thermometer, below, after it) shifts the fixes
+    // from the next one on: a step of the model, which the filter's position takes
+    // in at once instead of through its velocity.
+    moved_v2_ = std::max(moved_v2_, adapt_.take_moved_v2());
     if (judge && fix.common_gain_variance > 0.0) adapt_.observe_fix_gain(fix.common_gain, fix.common_gain_variance);
     if (fix.ok && widen_filter_) {
       // The fixes the filter has taken so far carried the drift the sensors' covariance
@@ -407,6 +412,10 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       widen_filter_ = false;
     }
     if (adapt_.widened_k2() > widened_k2) widen_filter_ = true;  // from the next fix on
+    if (fix.ok && moved_v2_ > 0.0) {
+      kf_.inflate(fix.sensitivity_m2_per_v2 * moved_v2_, 0.0, 0.0);
+      moved_v2_ = 0.0;
+    }
     if (fix.ok) {
       without_fix_in_row_ = 0;
       out_.hall_position_m = fix.position_m;

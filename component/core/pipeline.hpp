@@ -152,6 +152,9 @@ class AxisPipeline {
   /// The sensors' covariance was widened (a temperature change): the next fix widens
   /// the filter's covariance by the drift it allows for.
   bool widen_filter_ = false;
+  /// The thermal coefficients moved the sensors' readings (HallAdaptation::
+  /// take_moved_v2), not yet taken by a fix [V^2].
+  double moved_v2_ = 0.0;
   /// Travel over which a sensor's reading crosses one ADC step, on average [m].
   double quantisation_travel_m_ = 0.0;
   double disagreement_hold_m2_ = 0.0;  ///< its recent largest, widening the blame test

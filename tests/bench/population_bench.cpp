@@ -20,6 +20,9 @@
 //                                  [--jobs 2] [--no-temperature] [--temperature-signal]
 // --temperature-signal: every motor's sensor node reports its temperature (the
 // estimator then starts from what the data sheet predicts for the difference).
+// --thermal-calibration K: each calibration also gets a thermal calibration
+// (core/thermal_calibration.hpp) from a second calibration run recorded K kelvin
+// warmer (negative: colder); the tables go to population[-temperature-signal]-thermal.
 //
 // --cost [--reps R]: instead of the accuracy tables, the estimator's compute time per
 // sample on each motor (calibrated with a ruler): AxisPipeline::step over 5 s of the
@@ -58,6 +61,7 @@ struct Options {
   int jobs = 2;
   bool temperature = true;
   bool temperature_signal = false;
+  double thermal_rise_k = 0.0;  ///< != 0: thermal calibration from a second run this far away
   bool cost = false;
   int reps = 7;
   std::string command;
@@ -88,6 +92,9 @@ struct MotorResult {
   bench::CalibrationOutcome cal[2];  // 0: with ruler, 1: without
   Cell cell[2][kConditionCount][kScenarioCount];
   double detect_s[2] = {-1.0, -1.0};
+  bool thermal_ok[2] = {false, false};
+  double thermal_seconds[2] = {0.0, 0.0};
+  std::string thermal_note[2];
   std::string note;
 };
 
@@ -117,12 +124,21 @@ bool parse(int argc, char** argv, Options& o) {
       o.temperature = false;
     } else if (a == "--temperature-signal") {
       o.temperature_signal = true;
+    } else if (a == "--thermal-calibration") {
+      const char* v = next();
+      char* end = nullptr;
+      const double k = v ? std::strtod(v, &end) : 0.0;
+      if (!v || *end != '\0' || !(std::abs(k) >= 1.0 && std::abs(k) <= 40.0)) {
+        std::fprintf(stderr, "--thermal-calibration: expected a rise in K, 1 to 40 either way\n");
+        return false;
+      }
+      o.thermal_rise_k = k;
     } else if (a == "--cost") {
       o.cost = true;
     } else {
       std::fprintf(stderr,
                    "usage: %s [--motors N] [--first-seed S] [--out-dir DIR] [--jobs J] [--no-temperature] "
-                   "[--temperature-signal] [--cost [--reps R]]\n",
+                   "[--temperature-signal] [--thermal-calibration K] [--cost [--reps R]]\n",
                    argv[0]);
       return false;
     }
@@ -141,10 +157,28 @@ MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning,
     return m;
   }
   const auto scenarios = bench::population_scenarios(m.motor.datasheet.travel_m);
+  std::vector<core::ReferenceSegment> thermal_segments;
+  if (o.thermal_rise_k != 0.0 &&
+      !bench::record_population_thermal_run(m.motor, o.thermal_rise_k, thermal_segments, error)) {
+    m.note = "thermal calibration run failed: " + error;
+    return m;
+  }
   for (int ruler = 0; ruler < 2; ++ruler) {
     m.cal[ruler] = bench::calibrate_population_motor(m.motor, segments, ruler == 0);
-    const auto& c = m.cal[ruler];
+    auto& c = m.cal[ruler];
     if (!c.ok) continue;
+    if (o.thermal_rise_k != 0.0) {
+      core::ThermalCalibrationReport tr;
+      std::string terr;
+      const auto t0 = std::chrono::steady_clock::now();
+      const bool ok = bench::thermal_calibrate_population_motor(m.motor, thermal_segments, c, tr, terr);
+      m.thermal_seconds[ruler] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      m.thermal_ok[ruler] = ok;
+      char b[200];
+      std::snprintf(b, sizeof b, "rise %.2f K, common gain %+.3f %%, %d sensors, %.2f s", tr.rise_k,
+                    100.0 * tr.common_gain, tr.sensors_fitted, m.thermal_seconds[ruler]);
+      m.thermal_note[ruler] = ok ? std::string(b) : terr;
+    }
     for (int k = 0; k < kConditionCount; ++k) {
       if (!o.temperature && k > 0) continue;
       for (int s = 0; s < kScenarioCount; ++s) {
@@ -437,6 +471,9 @@ int main(int argc, char** argv) {
                        c.pass_line_residual_um, c.error.empty() ? "" : ": ",
                        c.error.c_str());
           for (const auto& p : c.problems) std::fprintf(stderr, "          problem: %s\n", p.c_str());
+          if (o.thermal_rise_k != 0.0 && c.ok)
+            std::fprintf(stderr, "          thermal calibration: %s%s\n", r.thermal_ok[ruler] ? "" : "FAILED: ",
+                         r.thermal_note[ruler].c_str());
           for (int k = 0; k < kConditionCount; ++k) {
             std::string line;
             for (int s = 0; s < kScenarioCount; ++s) {
@@ -473,8 +510,15 @@ int main(int argc, char** argv) {
         "floor is the error an exact calibration would still have from that (the slope of a line through the "
         "simulated track's magnet boundaries against their nominal places, over the stretch the calibration's "
         "slow passes crossed, times the distance from home); 'beyond the floor' is the product's error with that part taken out, sample by sample. "
-     << (o.temperature_signal ? "Every motor's sensor node reports its temperature (0.1 K noise, 0.0625 K steps).\n\n"
-                              : "No sensor node reports a temperature.\n\n");
+     << (o.temperature_signal ? "Every motor's sensor node reports its temperature (0.1 K noise, 0.0625 K steps)."
+                              : "No sensor node reports a temperature.")
+     << (o.thermal_rise_k != 0.0
+             ? f(" Each calibration also has a thermal calibration: each Hall sensor's temperature coefficients, "
+                 "fitted from a second calibration run recorded %+.0f K from the first (with the ruler's positions, or "
+                 "without one the array's own).",
+                 o.thermal_rise_k)
+             : std::string())
+     << "\n\n";
   int cal_ok[2] = {0, 0}, cal_good[2] = {0, 0};
   double worst_cal_s_per_m[2] = {0, 0};
   for (const auto& r : results)
@@ -487,6 +531,17 @@ int main(int argc, char** argv) {
     md << "* Calibration " << (ruler == 0 ? "with a ruler" : "without a ruler") << ": " << cal_good[ruler] << " of "
        << o.motors << " good, " << cal_ok[ruler] - cal_good[ruler] << " poor, " << o.motors - cal_ok[ruler]
        << " failed; longest " << f("%.2f", worst_cal_s_per_m[ruler]) << " s of compute per metre of sweep.\n";
+  if (o.thermal_rise_k != 0.0)
+    for (int ruler = 0; ruler < 2; ++ruler) {
+      int ok = 0;
+      double worst = 0.0;
+      for (const auto& r : results) {
+        ok += r.thermal_ok[ruler];
+        worst = std::max(worst, r.thermal_seconds[ruler] / r.motor.datasheet.travel_m);
+      }
+      md << "* Thermal calibration " << (ruler == 0 ? "with a ruler" : "without a ruler") << ": " << ok << " of "
+         << cal_ok[ruler] << " calibrations; longest " << f("%.2f", worst) << " s of compute per metre of sweep.\n";
+    }
   md << "\n| ruler | condition | scenario | pos RMS worst / median [um] | vel RMS worst / median [mm/s] | "
         "+-2sigma pos min / median / all motors | +-2sigma vel min / median / all motors | VALID min | largest error while VALID [um] | motors with a healthy sensor flagged | "
         "no ruler: track-scale floor worst / median [um] | no ruler: pos RMS beyond the floor worst / median [um] |\n"
@@ -547,8 +602,9 @@ int main(int argc, char** argv) {
          << f("%.1f", d.empty() ? NAN : *std::max_element(d.begin(), d.end())) << " ms.\n";
     }
   }
-  md << "\n![position RMS per motor](" << (o.temperature_signal ? "population-temperature-signal" : "population")
-     << ".svg)\n\n## Motors\n\n";
+  const std::string stem = std::string(o.temperature_signal ? "population-temperature-signal" : "population") +
+                           (o.thermal_rise_k != 0.0 ? "-thermal" : "");
+  md << "\n![position RMS per motor](" << stem << ".svg)\n\n## Motors\n\n";
   for (const auto& r : results) md << "* " << r.motor.summary() << (r.note.empty() ? "" : " -- " + r.note) << "\n";
   std::printf("%s", md.str().c_str());
 
@@ -562,7 +618,6 @@ int main(int argc, char** argv) {
     std::filesystem::rename(path + ".tmp", path, ec);
     std::fprintf(stderr, "written: %s%s\n", path.c_str(), ec ? (" FAILED: " + ec.message()).c_str() : "");
   };
-  const std::string stem = o.temperature_signal ? "population-temperature-signal" : "population";
   write(stem + ".md", md.str());
   write(stem + ".svg", make_svg(results, o.first_seed));
   return ec ? 1 : 0;

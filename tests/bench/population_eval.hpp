@@ -18,6 +18,7 @@
 #include "core/pipeline.hpp"
 #include "core/self_calibration.hpp"
 #include "core/status.hpp"
+#include "core/thermal_calibration.hpp"
 #include "sim/calibration_run.hpp"
 #include "sim/population.hpp"
 #include "sim/sim_source.hpp"
@@ -191,6 +192,31 @@ inline CalibrationOutcome calibrate_population_motor(const sim::PopulationMotor&
   }
   o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return o;
+}
+
+/// A second calibration run recorded `rise_k` away from the first's temperature
+/// (the motor warmed by running, or a cold shift), as a commissioning engineer
+/// would record it for a thermal calibration.
+inline bool record_population_thermal_run(const sim::PopulationMotor& p, double rise_k,
+                                          std::vector<core::ReferenceSegment>& segments, std::string& error) {
+  sim::SimConfig cfg = p.sim;
+  cfg.temperature.profile = sim::TemperatureConfig::Profile::constant;
+  cfg.temperature.offset_k = rise_k;
+  cfg.noise_seed = p.sim.noise_seed + 7919;
+  return sim::record_calibration_run(p.hardware, cfg, population_calibration_run(), segments, error);
+}
+
+/// Thermal calibration of `c` from that run (its ruler column blanked when `c` was
+/// made without a ruler): on success c.cal.model holds the sensors' coefficients.
+inline bool thermal_calibrate_population_motor(const sim::PopulationMotor& p,
+                                               std::vector<core::ReferenceSegment> segments, CalibrationOutcome& c,
+                                               core::ThermalCalibrationReport& report, std::string& error) {
+  if (!c.with_ruler)
+    for (auto& s : segments) s.reference_m.assign(s.reference_m.size(), std::nan(""));
+  core::SensorModel model;
+  if (!core::fit_thermal_coefficients(p.datasheet, c.cal, segments, {}, model, report, error)) return false;
+  c.cal.model = model;
+  return true;
 }
 
 struct FaultProbe {

@@ -10,6 +10,7 @@
 
 #include "app/reports.hpp"
 #include "app/svg_plot.hpp"
+#include "config/calibration_file.hpp"
 #include "config/loader.hpp"
 #include "core/identification.hpp"
 #include "process.hpp"
@@ -149,6 +150,55 @@ TEST(CalibrationReport, CalibrateCommandWritesThePlotsBesideTheReport) {
     EXPECT_NE(report.find(file), std::string::npos) << report;
     expect_well_formed_svg(dir.path / "out" / file);
   }
+}
+
+// calibrate --thermal adds each Hall sensor's temperature coefficients to the axis'
+// calibration, from a calibration run of the simulator 15 K warmer: the file stays
+// loadable, keeps its table and gains a thermal section. A run too close in
+// temperature, or no calibration to add them to, is refused and changes nothing.
+TEST(CalibrationReport, ThermalCalibrationAddsTheCoefficientsAndRefusesWhatCannotGiveThem) {
+  TempDir dir;
+  const fs::path machine = make_machine(dir.path);
+  const fs::path cal = dir.path / "out" / "x.cal.yaml";
+  {
+    ve::test::ChildProcess p({VE_BINARY, "calibrate", "--config", machine.string(), "--out", cal.string(), "--thermal"},
+                             (dir.path / "none.log").string());
+    EXPECT_EQ(p.wait_exit(120s), 2) << p.log();
+    EXPECT_NE(p.log().find("thermal calibration needs the axis' calibration first"), std::string::npos) << p.log();
+    EXPECT_FALSE(fs::exists(cal));
+  }
+  {
+    ve::test::ChildProcess p({VE_BINARY, "calibrate", "--config", machine.string(), "--out", cal.string(), "--force"},
+                             (dir.path / "cal.log").string());
+    ASSERT_EQ(p.wait_exit(120s), 0) << p.log();
+  }
+  const std::string plain = read(cal);
+  EXPECT_EQ(plain.find("\nthermal:"), std::string::npos);
+  {
+    ve::test::ChildProcess p({VE_BINARY, "calibrate", "--config", machine.string(), "--out", cal.string(), "--thermal",
+                              "--sim-temperature-rise", "2"},
+                             (dir.path / "close.log").string());
+    EXPECT_EQ(p.wait_exit(120s), 1) << p.log();
+    EXPECT_NE(p.log().find("record it at least 5 K warmer or colder"), std::string::npos) << p.log();
+    EXPECT_EQ(read(cal), plain) << "a refused thermal calibration changed the file";
+  }
+  {
+    ve::test::ChildProcess p({VE_BINARY, "calibrate", "--config", machine.string(), "--out", cal.string(), "--thermal"},
+                             (dir.path / "thermal.log").string());
+    ASSERT_EQ(p.wait_exit(120s), 0) << p.log();
+    EXPECT_NE(p.log().find("sensor 3: offset"), std::string::npos) << p.log();
+  }
+  const std::string thermal = read(cal);
+  ASSERT_NE(thermal.find("\nthermal:"), std::string::npos) << thermal.substr(0, 2000);
+  // The table is the calibration's, untouched.
+  EXPECT_EQ(thermal.substr(thermal.find("\ntable:")), plain.substr(plain.find("\ntable:")));
+  EXPECT_TRUE(fs::exists(cal.string() + ".thermal.txt"));
+  const auto loaded = ve::config::load_machine_file(machine.string());
+  ASSERT_TRUE(loaded.ok()) << ve::config::to_string(loaded.errors);
+  const auto back = ve::config::load_calibration_file(cal.string(), loaded.config.axes.at(0).motor);
+  ASSERT_TRUE(back.ok()) << ve::config::to_string(back.errors);
+  EXPECT_TRUE(back.calibration.model.thermal_known);
+  EXPECT_NEAR(back.calibration.model.thermal_rise_k, 15.0, 2.0);
 }
 
 }  // namespace

@@ -160,6 +160,56 @@ TEST_F(CalibrationFile, KeepsTheTablesOwnNoiseAndReadsOlderFilesWithout) {
   expect_refused_with("table_noise_v", "-0.001");
 }
 
+TEST_F(CalibrationFile, KeepsEachSensorsThermalCoefficients) {
+  // Absent before a thermal calibration: the file and its checksum are as before.
+  EXPECT_EQ(slurp(write_good("plain.cal.yaml")).find("thermal"), std::string::npos);
+  const std::string plain_id = cal_.info.id;
+  auto& m = cal_.model;
+  m.thermal_known = true;
+  m.thermal_rise_k = 14.794;
+  m.common_tc_per_k = -0.0022;
+  m.common_tc_rel_std = 0.0068;
+  for (int i = 0; i < cal_.info.hall_count; ++i) {
+    const auto k = static_cast<std::size_t>(i);
+    m.hall_gain_tc_per_k[k] = 1e-4 * (i - 1.5);
+    m.hall_gain_tc_std_per_k[k] = 3e-5;
+    m.hall_offset_tc_v_per_k[k] = -2.5e-4 + 1e-4 * i;
+    m.hall_offset_tc_std_v_per_k[k] = 3.1e-5;
+  }
+  cal_.info.id = core::calibration_checksum(cal_);
+  EXPECT_NE(cal_.info.id, plain_id);  // part of what the id names
+  const std::string p = write_good();
+  const CalibrationLoad r = load_calibration_file(p, motor_);
+  ASSERT_TRUE(r.ok()) << to_string(r.errors);
+  const auto& got = r.calibration.model;
+  EXPECT_TRUE(got.thermal_known);
+  EXPECT_EQ(got.thermal_rise_k, m.thermal_rise_k);
+  EXPECT_EQ(got.common_tc_per_k, m.common_tc_per_k);
+  EXPECT_EQ(got.common_tc_rel_std, m.common_tc_rel_std);
+  EXPECT_EQ(got.hall_gain_tc_per_k, m.hall_gain_tc_per_k);  // shortest round-trip form: exact
+  EXPECT_EQ(got.hall_gain_tc_std_per_k, m.hall_gain_tc_std_per_k);
+  EXPECT_EQ(got.hall_offset_tc_v_per_k, m.hall_offset_tc_v_per_k);
+  EXPECT_EQ(got.hall_offset_tc_std_v_per_k, m.hall_offset_tc_std_v_per_k);
+  EXPECT_EQ(core::calibration_checksum(r.calibration), cal_.info.id);
+
+  // A list one sensor short is refused, naming the file, the line and the key.
+  std::string text = slurp(p);
+  const auto at = text.find("  offset_tc_v_per_k: [");
+  ASSERT_NE(at, std::string::npos);
+  const auto comma = text.find(", ", at);
+  const auto close = text.find(']', at);
+  text.erase(text.rfind(", ", close), close - text.rfind(", ", close));
+  ASSERT_LT(comma, close);
+  spit(p, text);
+  const CalibrationLoad bad = load_calibration_file(p, motor_);
+  ASSERT_FALSE(bad.ok());
+  const std::string why = to_string(bad.errors);
+  EXPECT_NE(why.find("thermal.offset_tc_v_per_k"), std::string::npos) << why;
+  EXPECT_NE(why.find("3 values but hall_count is 4"), std::string::npos) << why;
+  const auto line = std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(at), '\n') + 1;
+  EXPECT_NE(why.find(p + ":" + std::to_string(line) + ":"), std::string::npos) << why << " (line " << line << ")";
+}
+
 TEST_F(CalibrationFile, ARulerLessCalibrationKeepsTheStretchItsPassesMade) {
   // Absent from a calibration with a ruler: the file and its checksum are as before.
   EXPECT_EQ(slurp(write_good("ruler.cal.yaml")).find("table_trusted"), std::string::npos);

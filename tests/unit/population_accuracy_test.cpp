@@ -10,16 +10,13 @@
 
 #include "../bench/population_eval.hpp"
 #include "config/loader.hpp"
+#include "shipped_tuning.hpp"
 
 namespace {
 
 using namespace ve;
 
-core::FilterConfig shipped_tuning() {
-  const auto loaded = config::load_machine_file(std::string(VE_SOURCE_DIR) + "/config/machines/sim.yaml");
-  EXPECT_TRUE(loaded.ok()) << config::to_string(loaded.errors);
-  return loaded.config.axes.at(0).motor.filter;
-}
+using test::shipped_tuning;
 
 /// The motor calibrated from one simulated calibration run, with a ruler or without.
 bench::CalibrationOutcome calibrated(const sim::PopulationMotor& p, bool with_ruler) {
