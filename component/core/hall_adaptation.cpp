@@ -293,6 +293,12 @@ double HallAdaptation::residual(const RawSample& raw, const HallTable& table, in
 void HallAdaptation::update(const RawSample& raw, const HallTable& table, double x_m, double common_mode_v,
                             std::uint32_t mask, std::uint32_t learn_only_mask, double share) {
   if (!enabled_) return;
+  // With thermal coefficients the first reading of the rise moves every sensor by what
+  // the temperature did to it; what the sensors learnt before it would be counted
+  // twice (motor 8 of the population, 10 K cold at 1 m/s: sensor 1 learnt 1.0 of its
+  // 5.7 mV in the 10 ms before the first reading, and unlearning it was a magnet-period
+  // pattern of 0.7 um in the position, 0.2 mm/s in the velocity).
+  if (thermal_ && !temperature_checked()) return;
   share = std::clamp(share, 1e-9, 1.0);
   p_common_ = std::min(p_common_ + q_common_, p0_common_);
   for (int i = 0; i < sensors_; ++i) {

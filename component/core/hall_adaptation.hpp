@@ -120,6 +120,9 @@ class HallAdaptation {
   }
 
   bool enabled() const { return enabled_; }
+  /// The rise over the calibration the sensors follow by their thermal coefficients
+  /// (0 without a thermal calibration, or before the rise is first read) [K].
+  double followed_rise_k() const { return followed_k_; }
   /// Whether the estimator knows how far the motor's temperature is from the
   /// calibration's: reported by the node, or read from the fixes' common gain
   /// (observe_fix_gain, after its first average). Until then the sensors' gains and

@@ -224,8 +224,12 @@ TEST(SelfCalibrationPopulation, EveryMotorCalibratesWithoutAReference) {
                 o.accel_scale_rel_err * 100.0, o.accel_bias_err, o.accel_delay_err_s * 1e6,
                 o.hall_delay_reproduced_err_s * 1e6, o.sensor_offset_max_err_m * 1e6, o.track_scale_std * 1e6,
                 o.track_scale_true * 1e6);
-  // Met on every motor so far: no refusal, a verdict of good (the calibration is
-  // written), a table that solves everywhere, the accelerometer's scale. The target
+  // Met on motors 1-32 (VE_POPULATION_MOTORS=32): no refusal, a verdict of good (the
+  // calibration is written), a table that solves everywhere, the accelerometer's scale.
+  // Motor 33 misses the scale: 0.120 % off (6 Halls 1.1 mm apart on an 11.9 mm pitch,
+  // all near one phase, where a common-mode offset looks like a shift of the position:
+  // its coil field comes out 0.71 against 0.85 mV per m/s^2 and the accelerometer's
+  // delay 5.8 us early; docs/accuracy.md, what is left). The target
   // not met on every motor yet (Hall position within 2 um RMS over the whole travel:
   // the track's own scale, see docs/accuracy.md) is counted here and asserted with
   // VE_POPULATION_TARGETS=1.
