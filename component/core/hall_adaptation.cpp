@@ -53,6 +53,7 @@ HallAdaptation::HallAdaptation(const MotorConfig& motor, double ts_s, const Sens
       offset_tc_std_v_[k] = model->hall_offset_tc_std_v_per_k[k];
     }
   }
+  unread_rise_var_k2_ = f.hall_unread_temperature_rise_k * f.hall_unread_temperature_rise_k;
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
     unread_gain_var_ = std::max(unread_gain_var_, gain_tc_[k] * gain_tc_[k] + gain_tc_std_[k] * gain_tc_std_[k]);
@@ -105,11 +106,33 @@ void HallAdaptation::widen_for_rise(double from_k, double to_k) {
   }
 }
 
-void HallAdaptation::follow_rise(double to_k) {
+void HallAdaptation::follow_rise(double to_k, double var_k2) {
   // A thermal calibration measured each sensor's own coefficients: the rise moves
   // its gain and offset by them (a prediction, what the learning then corrects),
   // and widen_for_rise widens by what the coefficients leave, not by their spread.
   if (!thermal_ || !std::isfinite(to_k)) return;
+  // A rise read poorly is followed as far as it is known against the spread of an
+  // unread one (the fixes' thermometer where the carriage stands on two sensors reads
+  // the common gain to a percent or worse: motor 69 of the population, as calibrated,
+  // read -2 to -3 K and its sensors, moved by that, put it 2.6 um off where it had
+  // been 0.8), and the covariance holds what the coefficients make of the rest.
+  if (var_k2 > 0.0) {
+    const double post = unread_rise_var_k2_ * var_k2 / (unread_rise_var_k2_ + var_k2);
+    to_k *= unread_rise_var_k2_ / (unread_rise_var_k2_ + var_k2);
+    if (post > follow_var_k2_) {
+      const double add = post - follow_var_k2_;
+      follow_var_k2_ = post;
+      const double limit2 = gain_limit_ * gain_limit_;
+      for (int i = 0; i < sensors_; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        const double g2 = gain_tc_[k] * gain_tc_[k] * add, d2 = offset_tc_v_[k] * offset_tc_v_[k] * add;
+        pgg(i) = std::min(pgg(i) + g2, limit2);
+        pdd(i) += d2;
+        look_gg_[k] = std::min(look_gg_[k] + g2, limit2);
+        look_dd_[k] += d2;
+      }
+    }
+  }
   const double d = to_k - followed_k_;
   followed_k_ = to_k;
   const double level = std::max(hi_v_ - mid_v_, mid_v_ - lo_v_);
@@ -121,7 +144,7 @@ void HallAdaptation::follow_rise(double to_k) {
   }
 }
 
-void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
+void HallAdaptation::observe_fix_gain(double relative_change, double variance, double share) {
   if (!enabled_ || temperature_known_ || !std::isfinite(relative_change) || !(variance > 0.0) ||
       !(std::abs(common_tc_per_k_) > 0.0))
     return;
@@ -138,14 +161,21 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   const double w = 1.0 / (variance + model_var_common_);
   infer_wg_ = infer_decay_ * infer_wg_ + w * g;
   infer_w_ = infer_decay_ * infer_w_ + w;
+  // For how well the average knows the rise: its fixes' typical variance, divided by
+  // the places they were taken at (a place is a quarter of a magnet period: 50 samples
+  // of full share), not by their number.
+  infer_n_ = infer_decay_ * infer_n_ + 1.0;
+  infer_places_ = infer_decay_ * infer_places_ + std::clamp(share, 0.0, 1.0) / 50.0;
   if (++infer_samples_ < infer_first_samples_) return;
+  const double read_var_k2 =
+      infer_n_ / infer_w_ / (1.0 + infer_places_) / (common_tc_per_k_ * common_tc_per_k_);
   // The coefficients are known to tc_rel_std: the rise they imply, as far as it may be.
   const double read_k = infer_wg_ / infer_w_ / common_tc_per_k_;
   const double rise_k = read_k * std::sqrt(1.0 + tc_rel_std_ * tc_rel_std_);
   if (!inferred_started_) {
     inferred_started_ = true;
     inferred_k_ = rise_k;
-    follow_rise(read_k);
+    follow_rise(read_k, read_var_k2);
     widen_for_rise(0.0, rise_k);
     return;
   }
@@ -153,7 +183,7 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance) {
   // step widening by what it allows (what was learnt in between stays learnt).
   const double d = rise_k - inferred_k_;
   if (std::abs(d) < 0.25) return;
-  follow_rise(read_k);
+  follow_rise(read_k, read_var_k2);
   widen_for_rise(inferred_k_, rise_k);
   inferred_k_ = rise_k;
 }

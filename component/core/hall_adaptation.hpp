@@ -87,7 +87,10 @@ class HallAdaptation {
   /// gain and offset may have moved, as temperature() does with a reported one. Taken
   /// from every fix, moving or not: at standstill it is the only witness of a change
   /// of temperature, and what the sensors' drift does there cannot be learnt.
-  void observe_fix_gain(double relative_change, double variance);
+  /// `share` (0..1) is how much of a new place the fix is (update()): fixes where the
+  /// carriage stands repeat their errors, and the thermometer's reading is then known
+  /// no better than one fix's.
+  void observe_fix_gain(double relative_change, double variance, double share = 1.0);
 
   /// Learns from one sample: `x_m` the position the Halls saw (the filter's
   /// prediction at the Halls' instant); only sensors in `mask` (not this sample's
@@ -223,7 +226,13 @@ class HallAdaptation {
   std::array<double, kMaxHalls> gain_tc_{}, offset_tc_v_{};
   double followed_k_ = 0.0;
   double moved_v2_ = 0.0;
-  void follow_rise(double to_k);
+  /// `var_k2`: how well the rise is known [K^2]; the sensors follow the rise as far as
+  /// that allows against the prior spread of an unread rise, and their covariance
+  /// widens by what the coefficients make of the rest.
+  void follow_rise(double to_k, double var_k2 = 0.0);
+  double unread_rise_var_k2_ = 100.0;  ///< the prior spread of a rise not read [K^2]
+  double follow_var_k2_ = 0.0;         ///< the rise's variance the covariance holds so far [K^2]
+  double infer_n_ = 0.0, infer_places_ = 0.0;  ///< the fixes' count and new places in the average
   /// A change of temperature not read moves a sensor by its coefficients (not
   /// followed there) and their spread: the largest of the sensors', squared.
   double unread_gain_var_ = 0.0, unread_offset_var_ = 0.0;

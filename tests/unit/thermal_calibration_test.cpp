@@ -85,6 +85,44 @@ TEST_P(ThermalCalibrationPopulation, AWarmOrColdMotorAtStandstillFollowsItsSenso
   }
 }
 
+// Without a temperature from the node the rise is the fixes' common gain read as a
+// thermometer; where the carriage stands on two sensors that gain is known to a
+// percent or worse, and the sensors must not be moved by a rise the thermometer does
+// not know. Motor 69 as calibrated read -2 to -3 K there: moved by it, it was 2.6 um
+// off (0.8 um without the coefficients) and VALID at 5.1 um; motor 81, 10 K warm, was
+// VALID at 7.9 um. The sensors now follow the rise as far as it is known, and the
+// covariance holds what the coefficients make of the rest. (Both motors are of the
+// held-out sets, 61-100, where these two cases were found.)
+TEST(ThermalCalibrationPopulationNoRuler, APoorReadingOfTheRiseMovesTheSensorsOnlyAsFarAsItIsKnown) {
+  for (const auto& [seed, cond] : {std::pair{69ull, bench::Condition::as_calibrated},
+                                   std::pair{81ull, bench::Condition::ramp_plus_10k}}) {
+    const auto p = sim::draw_population_motor(seed, shipped_tuning());
+    ASSERT_FALSE(p.sim.temperature.report);
+    const Calibrated c = calibrate(p, true);
+    ASSERT_TRUE(c.thermal.ok) << c.error;
+    const auto standstill = bench::population_scenarios(p.datasheet.travel_m).at(0);
+    int used = 0;
+    const auto plain = bench::run_population_scenario(p, c.plain, standstill, cond, 1000 + seed);
+    const auto after = bench::run_population_scenario(
+        p, c.thermal, standstill, cond, 1000 + seed, {},
+        [&](double, const core::EncoderEstimate& e, const core::AxisPipeline&, const sim::SimSource&) {
+          used = e.hall_sensors_used;
+        });
+    ASSERT_TRUE(plain.ok && after.ok) << plain.error << after.error;
+    std::printf("[ figures  ] motor %llu %-13s sensors used %d | without coefficients %.3f um VALID %.1f %% | with "
+                "them %.3f um VALID %.1f %% 2-sigma %.1f %% largest error while VALID %.3f um\n",
+                static_cast<unsigned long long>(seed), bench::condition_name(cond), used,
+                plain.err.position_m.rms() * 1e6, 100 * plain.valid_fraction(), after.err.position_m.rms() * 1e6,
+                100 * after.valid_fraction(), 100 * after.err.position_coverage(), after.max_valid_error_m * 1e6);
+    ASSERT_EQ(used, 2) << "the premise: two sensors out of saturation where it stands";
+    EXPECT_LE(after.max_valid_error_m, bench::kValidPositionAccuracyM) << "motor " << seed;
+    // Not asserted: motor 81's 2-sigma coverage, 80.8 % (100 % without the coefficients,
+    // whose sigma was 15 um wide); docs/accuracy.md, thermal calibration.
+    if (cond == bench::Condition::as_calibrated)
+      EXPECT_LE(after.err.position_m.rms(), 2.0 * plain.err.position_m.rms()) << "motor " << seed;
+  }
+}
+
 // Without a ruler the positions of the thermal run come from the array itself. Motor
 // 2's run starts at the end of its table (where the table rests on the
 // accelerometer's bridge), motor 7's track has almost no signature (magnets 1 um,
