@@ -13,11 +13,16 @@
 // Model, per sensor i, as HallAdaptation's: y_i = c + m + delta_i + g_i (T_i(x) - m),
 // T_i the calibration's table, m the zero-field output, c the coil field's common
 // mode, g_i = (1 + G)(1 + gamma_i) with G the gain all sensors share (the geometric
-// mean of the g_i) and gamma_i the sensor's own. The recording gives x: the ruler
-// when it has one; without one, the array itself, its readings corrected by the
-// fit so far (a few rounds: over many magnet periods a sensor's offset and gain
-// change cannot mimic a shift of the position, whose effect changes sign with the
-// sensor's slope). Each sensor's (delta_i, g_i) is a linear least-squares fit.
+// mean of the g_i) and gamma_i the sensor's own. With a ruler, x is the ruler's
+// (at the Halls' instant) and each sensor's (delta_i, g_i) a linear least-squares
+// fit. Without one, x comes from the array itself, its readings corrected by the fit
+// so far, and every sensor's (delta_i, g_i) is fitted together in one Gauss-Newton
+// step per round with each sample's position error a nuisance (over many magnet
+// periods an offset or gain change cannot mimic a shift of the position, whose effect
+// changes sign with the sensor's slope). The recording is placed on the table first:
+// readings corrected by each sensor's quartiles against its table, then an anchor
+// sample per recorded segment scored in every period of the table over several
+// magnets, chosen again in the second round.
 //
 // The rise: the node's temperature against the calibration's, when both were
 // reported (the common gain per kelvin is then measured too); otherwise the common
