@@ -118,8 +118,9 @@ TEST(ThermalCalibrationPopulationNoRuler, APoorReadingOfTheRiseMovesTheSensorsOn
     EXPECT_LE(after.max_valid_error_m, bench::kValidPositionAccuracyM) << "motor " << seed;
     // Not asserted: motor 81's 2-sigma coverage, 80.8 % (100 % without the coefficients,
     // whose sigma was 15 um wide); docs/accuracy.md, thermal calibration.
-    if (cond == bench::Condition::as_calibrated)
+    if (cond == bench::Condition::as_calibrated) {
       EXPECT_LE(after.err.position_m.rms(), 2.0 * plain.err.position_m.rms()) << "motor " << seed;
+    }
   }
 }
 
