@@ -947,10 +947,10 @@ static int thermal_calibrate(const CalibrateOptions& options, const config::Axis
   char buf[256];
   std::snprintf(buf, sizeof buf,
                 "thermal calibration of axis '%s' (motor %s): the recording is %+.2f K from the calibration (%s), "
-                "the sensors' common gain %+.3f %%%s\n",
+                "the sensors' common gain %+.3f %%\n",
                 axis.name.c_str(), axis.motor.name.c_str(), report.rise_k,
                 report.rise_reported ? "the sensor node's temperature" : "read from the sensors' common gain",
-                100.0 * report.common_gain, "");
+                100.0 * report.common_gain);
   text += buf;
   if (std::isfinite(cal.model.common_tc_per_k)) {
     std::snprintf(buf, sizeof buf, "  common gain %+.4f %%/K (+-%.1f %%)\n", 100.0 * cal.model.common_tc_per_k,

@@ -69,6 +69,9 @@ bool fit_thermal_coefficients(const MotorConfig& motor, const Calibration& base,
   const double guard = motor.filter.hall_gain_limit * motor.hall.amplitude_v;
   const double ts = motor.sample_period_s();
   const double scale = std::abs(m0.accel_scale) > 0.0 ? m0.accel_scale : 1.0;
+  // The acceleration the calibrated accelerometer reads (its delay aside): the coil
+  // field's common mode, and which samples are calm enough to fit.
+  const auto acceleration = [&](const RawSample& raw) { return (raw.accel_mps2 - m0.accel_bias_mps2) / scale; };
 
   bool ruler = false;
   std::size_t total = 0;
@@ -138,12 +141,12 @@ bool fit_thermal_coefficients(const MotorConfig& motor, const Calibration& base,
       x[s].assign(len, std::nan(""));
       if (len == 0) continue;
       auto common_mode = [&](const RawSample& raw) {
-        return m0.coil_field_v_per_mps2 * (raw.accel_valid ? (raw.accel_mps2 - m0.accel_bias_mps2) / scale : 0.0);
+        return m0.coil_field_v_per_mps2 * (raw.accel_valid ? acceleration(raw) : 0.0);
       };
-      // The anchor: of samples spread over the segment, the one the whole table
-      // places best, well inside the stretch the slow passes made (near the sweep's
-      // ends the table rests on the accelerometer's bridge, and a recording starting
-      // there was placed a whole period off). Tracked forward and back from it.
+      // The anchor: of samples spread over the segment, the one placed most decisively,
+      // well inside the stretch the slow passes made (near the sweep's ends the table
+      // rests on the accelerometer's bridge, and a recording starting there was placed a
+      // whole period off). Tracked forward and back from it.
       const double in_lo = (m0.trusted_span_known() ? m0.table_trusted_from_m : table.start_m) + pitch;
       const double in_hi = (m0.trusted_span_known() ? m0.table_trusted_to_m : table.end_m()) - pitch;
       // One sample's match cannot tell the periods apart (the drift not corrected
@@ -255,7 +258,7 @@ bool fit_thermal_coefficients(const MotorConfig& motor, const Calibration& base,
         if (!std::isfinite(xs) || !table.contains(xs)) continue;
         const RawSample& raw = seg.samples[j];
         if (!raw.accel_valid) continue;
-        const double acc = (raw.accel_mps2 - m0.accel_bias_mps2) / scale;
+        const double acc = acceleration(raw);
         if (std::abs(acc) > config.max_accel_mps2) continue;
         table.evaluate_sensors(n, xs, tv.data(), sv.data());
         std::uint32_t usable = 0;
