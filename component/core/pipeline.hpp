@@ -142,6 +142,10 @@ class AxisPipeline {
   double drift_var_m2_ = 0.0;
   /// The velocity error that drift's pattern makes at the current speed [(m/s)^2].
   double drift_velocity_var_ = 0.0;
+  /// The last fix's pattern rate (2 pi v / pitch) [rad/s] and the time over which the
+  /// filter averages fixes [s]: what makes the disagreement a velocity error.
+  double pattern_rate_ = 0.0;
+  double averaged_s_ = 0.0;
   /// Until a fix has read the temperature (HallAdaptation::temperature_checked):
   /// what the sensors' own gains and offsets may have moved the last fix by over
   /// FilterConfig::hall_unread_temperature_rise_k [m^2], added to the published sigma;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <tuple>
 
 #include "../bench/population_eval.hpp"
 #include "config/loader.hpp"
@@ -82,6 +83,36 @@ TEST_P(ThermalCalibrationPopulation, AWarmOrColdMotorAtStandstillFollowsItsSenso
     EXPECT_GE(after.err.position_coverage(), 0.9) << bench::condition_name(cond);
     EXPECT_LE(after.max_valid_error_m, bench::kValidPositionAccuracyM) << bench::condition_name(cond);
     EXPECT_EQ(after.flagged, 0u) << bench::condition_name(cond) << ": no healthy sensor flagged";
+  }
+}
+
+// Moving off right after a start 10 K off the calibration temperature, the sensors'
+// learning settles over the first tenths of a second, and until it has the array's
+// disagreement (in the position's sigma) is a pattern the filter's velocity follows
+// at the speed it crosses the magnets. The velocity's sigma holds it: before it did,
+// 29-35 % of motor 8's velocity samples at 1 m/s (a 0.15 s window on its 0.26 m
+// travel) and 62 % of motor 14's from rest at 5 m/s^2 were within 2 sigma; now
+// 84-86 % and 100 %. (The population's target, 90 % over the motors, is in
+// docs/accuracy.md.)
+TEST(ThermalCalibrationPopulationMoving, TheVelocitySigmaHoldsTheSensorsLearningAfterAStart) {
+  for (const auto& [seed, scenario, cond] : {std::tuple{8ull, 1, bench::Condition::ramp_plus_10k},
+                                             std::tuple{8ull, 1, bench::Condition::step_minus_10k},
+                                             std::tuple{14ull, 2, bench::Condition::step_minus_10k}}) {
+    const auto p = sim::draw_population_motor(seed, shipped_tuning());
+    ASSERT_FALSE(p.sim.temperature.report);
+    const Calibrated c = calibrate(p, true);
+    ASSERT_TRUE(c.thermal.ok) << c.error;
+    const auto sc = bench::population_scenarios(p.datasheet.travel_m).at(static_cast<std::size_t>(scenario));
+    const auto r = bench::run_population_scenario(p, c.thermal, sc, cond, 1000 + seed);
+    ASSERT_TRUE(r.ok) << r.error;
+    std::printf("[ figures  ] motor %llu %-8s %-11s velocity %.4f mm/s RMS, 2-sigma %.1f %%; position %.3f um, "
+                "2-sigma %.1f %%; VALID %.1f %%\n",
+                static_cast<unsigned long long>(seed), sc.name.c_str(), bench::condition_name(cond),
+                r.err.velocity_mps.rms() * 1e3, 100 * r.err.velocity_coverage(), r.err.position_m.rms() * 1e6,
+                100 * r.err.position_coverage(), 100 * r.valid_fraction());
+    EXPECT_GE(r.err.velocity_coverage(), 0.8) << "motor " << seed << " " << sc.name << " " << bench::condition_name(cond);
+    EXPECT_GE(r.err.position_coverage(), 0.9) << "motor " << seed << " " << sc.name << " " << bench::condition_name(cond);
+    EXPECT_EQ(r.flagged, 0u) << "motor " << seed << ": no healthy sensor flagged";
   }
 }
 
