@@ -19,6 +19,7 @@
 #include <thread>
 #include <vector>
 
+#include <spdlog/fmt/fmt.h>
 #include <spdlog/spdlog.h>
 
 #include "axis.hpp"
@@ -943,15 +944,14 @@ static int thermal_calibrate(const CalibrateOptions& options, const config::Axis
     return 1;
   }
   config::stamp_calibration(cal);
-  std::string text;
+  // The names are the user's, of any length: not through a fixed buffer.
+  std::string text = fmt::format(
+      "thermal calibration of axis '{}' (motor {}): the recording is {:+.2f} K from the calibration ({}), "
+      "the sensors' common gain {:+.3f} %\n",
+      axis.name, axis.motor.name, report.rise_k,
+      report.rise_reported ? "the sensor node's temperature" : "read from the sensors' common gain",
+      100.0 * report.common_gain);
   char buf[256];
-  std::snprintf(buf, sizeof buf,
-                "thermal calibration of axis '%s' (motor %s): the recording is %+.2f K from the calibration (%s), "
-                "the sensors' common gain %+.3f %%\n",
-                axis.name.c_str(), axis.motor.name.c_str(), report.rise_k,
-                report.rise_reported ? "the sensor node's temperature" : "read from the sensors' common gain",
-                100.0 * report.common_gain);
-  text += buf;
   if (std::isfinite(cal.model.common_tc_per_k)) {
     std::snprintf(buf, sizeof buf, "  common gain %+.4f %%/K (+-%.1f %%)\n", 100.0 * cal.model.common_tc_per_k,
                   100.0 * cal.model.common_tc_rel_std);

@@ -17,10 +17,15 @@ namespace ve::core {
 
 namespace {
 
+/// A problem's message, whatever its length (one was longer than a fixed buffer and
+/// reached the user cut short).
 std::string fmt(const char* format, double a, double b = 0.0, double c = 0.0) {
-  char buf[256];
-  std::snprintf(buf, sizeof buf, format, a, b, c);
-  return buf;
+  const int n = std::snprintf(nullptr, 0, format, a, b, c);
+  if (n <= 0) return {};
+  std::string out(static_cast<std::size_t>(n) + 1, '\0');
+  std::snprintf(out.data(), out.size(), format, a, b, c);
+  out.resize(static_cast<std::size_t>(n));
+  return out;
 }
 
 /// Kinematics of the reference for every sample of a segment.

@@ -106,7 +106,9 @@ TEST_P(RealisticAccuracy, MeetsSpecAndTargetWithHonestSigma) {
   // too large there is judged over many places (StandstillSigmaHoldsOverPlaces).
   const double pos_coverage = static_cast<double>(pos_inside) / static_cast<double>(samples);
   const double vel_coverage = static_cast<double>(vel_inside) / static_cast<double>(samples);
-  if (sc.kind != MotionProfileConfig::Kind::standstill) EXPECT_LE(pos_coverage, 0.995);
+  if (sc.kind != MotionProfileConfig::Kind::standstill) {
+    EXPECT_LE(pos_coverage, 0.995);
+  }
   EXPECT_LE(vel_coverage, 0.995);
 }
 

@@ -611,7 +611,9 @@ TEST(CanopenEds, RoundTripMatchesTheServedDictionary) {
       } else {
         const std::size_t bytes = type == 0x0005 ? 1 : type == 0x0006 ? 2 : 4;
         EXPECT_EQ(served_value.data.size(), bytes) << name;
-        if (!live) EXPECT_EQ(served_value.u32(), eds_number(v.at("DefaultValue"), kId)) << name;
+        if (!live) {
+          EXPECT_EQ(served_value.u32(), eds_number(v.at("DefaultValue"), kId)) << name;
+        }
       }
       // The access type is the one the node enforces.
       if (access == "ro" || access == "const") {
@@ -628,7 +630,9 @@ TEST(CanopenEds, RoundTripMatchesTheServedDictionary) {
           ASSERT_TRUE(b.download(0x1A00, 0, 0, 1).ok);
         }
         EXPECT_TRUE(b.download(index, sub, served_value.u32(), static_cast<int>(served_value.data.size())).ok) << name;
-        if (mapping_entry) ASSERT_TRUE(b.download(0x1A00, 0, mapped, 1).ok);
+        if (mapping_entry) {
+          ASSERT_TRUE(b.download(0x1A00, 0, mapped, 1).ok);
+        }
       }
       ++compared;
     }

@@ -52,7 +52,7 @@ ve::core::RawSample sample(std::int64_t t_ns) {
 
 TEST(InputBounds, RawLogReaderRefusesDevicesAndDirectoriesNamingThem) {
   Dir dir;
-  for (const std::string path : {std::string("/dev/zero"), std::string("/dev/null"), dir.path.string()}) {
+  for (const std::string& path : {std::string("/dev/zero"), std::string("/dev/null"), dir.path.string()}) {
     RawLogReader r;
     EXPECT_FALSE(r.open(path)) << path;
     const std::string all = ve::replay::to_string(r.errors());
