@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 
 #include "app/reports.hpp"
@@ -193,6 +194,14 @@ TEST(CalibrationReport, ThermalCalibrationAddsTheCoefficientsAndRefusesWhatCanno
   // The table is the calibration's, untouched.
   EXPECT_EQ(thermal.substr(thermal.find("\ntable:")), plain.substr(plain.find("\ntable:")));
   EXPECT_TRUE(fs::exists(cal.string() + ".thermal.txt"));
+  {
+    // The summary names the axis and the motor and says where the rise came from.
+    std::ifstream in(cal.string() + ".thermal.txt");
+    const std::string summary((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(summary.find("thermal calibration of axis '"), std::string::npos) << summary;
+    EXPECT_NE(summary.find("K from the calibration (read from the sensors' common gain)"), std::string::npos)
+        << summary;
+  }
   const auto loaded = ve::config::load_machine_file(machine.string());
   ASSERT_TRUE(loaded.ok()) << ve::config::to_string(loaded.errors);
   const auto back = ve::config::load_calibration_file(cal.string(), loaded.config.axes.at(0).motor);
