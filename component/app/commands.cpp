@@ -894,6 +894,45 @@ int check_command(const CheckOptions& options) {
 
 // ------------------------------------------------------------------- calibrate
 
+/// The recording a calibration is made from (`what`: "calibration" or "thermal
+/// calibration"): read from --log, or recorded live on the simulator `sim`. Returns
+/// -1 with `segments` filled (and whether the log has a ruler column), or the
+/// command's exit code once it has said why not.
+template <class Progress>
+static int acquire_calibration_run(const CalibrateOptions& options, const config::AxisConfig& axis,
+                                   const sim::SimConfig& sim, const std::string& what, Progress& progress, bool tty,
+                                   std::vector<core::ReferenceSegment>& segments, bool& has_reference) {
+  std::string error;
+  has_reference = false;
+  if (!options.log.empty()) {
+    if (!read_calibration_log_any(options.log, axis.motor.hall.count, segments, has_reference, error)) {
+      if (termination_requested()) return interrupted(("reading the " + what + " log").c_str());
+      std::fprintf(stderr, "%s\n", error.c_str());
+      return 2;
+    }
+    long rows = 0;
+    for (const auto& seg : segments) rows += static_cast<long>(seg.samples.size());
+    if (rows < 1000) {
+      std::fprintf(stderr, "%s: %ld usable rows: too short for a %s%s\n", options.log.c_str(), rows, what.c_str(),
+                   has_reference ? "" : " (and it has no ref_position_m column)");
+      return 2;
+    }
+  } else {
+    sim::CalibrationRunConfig run;
+    run.sweep_speed_mps = options.sweep_speed_mps;
+    run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
+    if (!sim::record_calibration_run(axis.motor, sim, run, segments, error,
+                                     [&](double f) { progress("recording", f); }, &termination_flag())) {
+      if (termination_requested()) return interrupted(("the " + what + " run").c_str());
+      std::fprintf(stderr, "\n%s run failed: %s\n", what.c_str(), error.c_str());
+      return 1;
+    }
+    if (tty) std::fprintf(stderr, "\n");
+  }
+  if (termination_requested()) return interrupted(("the " + what + " run").c_str());
+  return -1;
+}
+
 /// calibrate --thermal: the axis' calibration (at `out`) gains each Hall sensor's
 /// temperature coefficients, fitted from a calibration run recorded some kelvin away
 /// from it (a log, or live on the simulator run that much warmer). The table and the
@@ -907,35 +946,21 @@ static int thermal_calibrate(const CalibrateOptions& options, const config::Axis
                  config::to_string(base.errors).c_str());
     return 2;
   }
+  // On the simulator the same run, that much warmer (or colder) than its calibration.
+  sim::SimConfig sim = axis.driver.sim;
+  sim.temperature.profile = sim::TemperatureConfig::Profile::constant;
+  sim.temperature.offset_k += options.sim_temperature_rise_k;
+  sim.temperature.delta_k = 0.0;
   std::vector<core::ReferenceSegment> segments;
+  bool has_reference = false;
+  if (const int code =
+          acquire_calibration_run(options, axis, sim, "thermal calibration", progress, tty, segments, has_reference);
+      code >= 0)
+    return code;
+  if (!options.log.empty() && !has_reference)
+    std::fprintf(stderr, "%s has no ref_position_m column: positions from the Hall array itself\n",
+                 options.log.c_str());
   std::string error;
-  if (!options.log.empty()) {
-    bool has_reference = false;
-    if (!read_calibration_log_any(options.log, axis.motor.hall.count, segments, has_reference, error)) {
-      if (termination_requested()) return interrupted("reading the thermal recording");
-      std::fprintf(stderr, "%s\n", error.c_str());
-      return 2;
-    }
-    if (!has_reference)
-      std::fprintf(stderr, "%s has no ref_position_m column: positions from the Hall array itself\n",
-                   options.log.c_str());
-  } else {
-    sim::SimConfig sim = axis.driver.sim;
-    sim.temperature.profile = sim::TemperatureConfig::Profile::constant;
-    sim.temperature.offset_k += options.sim_temperature_rise_k;
-    sim.temperature.delta_k = 0.0;
-    sim::CalibrationRunConfig run;
-    run.sweep_speed_mps = options.sweep_speed_mps;
-    run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
-    if (!sim::record_calibration_run(axis.motor, sim, run, segments, error,
-                                     [&](double f) { progress("recording", f); }, &termination_flag())) {
-      if (termination_requested()) return interrupted("the thermal calibration run");
-      std::fprintf(stderr, "\nthermal calibration run failed: %s\n", error.c_str());
-      return 1;
-    }
-    if (tty) std::fprintf(stderr, "\n");
-  }
-  if (termination_requested()) return interrupted("the thermal calibration run");
   core::Calibration cal = base.calibration;
   core::ThermalCalibrationReport report;
   if (!core::fit_thermal_coefficients(axis.motor, base.calibration, segments, {}, cal.model, report, error)) {
@@ -1027,38 +1052,18 @@ int calibrate_command(const CalibrateOptions& options) {
   // The motion: a slow sweep over the whole travel and back, then fast multisine
   // motion; the simulator's exact position plays the reference ruler (unless
   // --no-reference, which never reads it).
-  sim::CalibrationRunConfig run;
-  run.sweep_speed_mps = options.sweep_speed_mps;
-  run.sweep_acceleration_mps2 = options.sweep_acceleration_mps2;
   std::vector<core::ReferenceSegment> segments;
-  std::string error;
+  bool has_reference = false;
+  if (const int code =
+          acquire_calibration_run(options, axis, axis.driver.sim, "calibration", progress, tty, segments, has_reference);
+      code >= 0)
+    return code;
   bool no_reference = options.no_reference;
-  if (!options.log.empty()) {
-    bool has_reference = false;
-    if (!read_calibration_log_any(options.log, axis.motor.hall.count, segments, has_reference, error)) {
-      if (termination_requested()) return interrupted("reading the calibration log");
-      std::fprintf(stderr, "%s\n", error.c_str());
-      return 2;
-    }
-    if (!has_reference && !no_reference) {
-      std::fprintf(stderr, "%s has no ref_position_m column: calibrating without a reference\n", options.log.c_str());
-      no_reference = true;
-    }
-    long rows = 0;
-    for (const auto& seg : segments) rows += static_cast<long>(seg.samples.size());
-    if (rows < 1000) {
-      std::fprintf(stderr, "%s: %ld usable rows: too short for a calibration%s\n", options.log.c_str(), rows,
-                   has_reference ? "" : " (and it has no ref_position_m column)");
-      return 2;
-    }
-  } else if (!sim::record_calibration_run(axis.motor, axis.driver.sim, run, segments, error,
-                                          [&](double f) { progress("recording", f); }, &termination_flag())) {
-    if (termination_requested()) return interrupted("the calibration run");
-    std::fprintf(stderr, "\ncalibration run failed: %s\n", error.c_str());
-    return 1;
+  if (!options.log.empty() && !has_reference && !no_reference) {
+    std::fprintf(stderr, "%s has no ref_position_m column: calibrating without a reference\n", options.log.c_str());
+    no_reference = true;
   }
-  if (termination_requested()) return interrupted("the calibration run");
-  if (tty) std::fprintf(stderr, "\n");
+  std::string error;
 
   core::Calibration cal;
   core::IdentificationReport report;
