@@ -88,6 +88,7 @@ FusionFilter::FusionFilter(double ts_s, const FilterConfig& tuning, const Sensor
 void FusionFilter::reset(double position_m, double position_var_m2, double accel_reading_mps2, bool accel_valid) {
   x_.setZero();
   p_.setZero();
+  delay_sens_.setZero();
   clear_detectors();
   hall_updates_ = 0;
   steady_ = false;
@@ -126,6 +127,7 @@ bool FusionFilter::doubt_vibration() {
   const double sv = std::max(model_.frame_vibration_mps2, 0.01);
   for (int s : {static_cast<int>(kVibIn), static_cast<int>(kVibQuad)}) {
     x_(s) = 0.0;
+    delay_sens_(s) = 0.0;
     p_.row(s).setZero();
     p_.col(s).setZero();
     p_(s, s) = sv * sv;
@@ -142,6 +144,8 @@ void FusionFilter::predict() {
   const auto av = a_.block<2, 2>(V, V);
   x_.segment<4>(K) = (ak * x_.segment<4>(K)).eval();
   x_.segment<2>(V) = (av * x_.segment<2>(V)).eval();
+  delay_sens_.segment<4>(K) = (ak * delay_sens_.segment<4>(K)).eval();
+  delay_sens_.segment<2>(V) = (av * delay_sens_.segment<2>(V)).eval();
 
   p_.block<4, 4>(K, K) = (ak * p_.block<4, 4>(K, K) * ak.transpose()).eval();
   p_.block<4, 2>(K, B) = (ak * p_.block<4, 2>(K, B)).eval();
@@ -216,6 +220,7 @@ void FusionFilter::enter_steady() {
   steady_ = true;
   q_ = q_steady_;
   x_(kJerk) = 0.0;
+  delay_sens_(kJerk) = 0.0;  // the jerk is held at 0 in the calm model
   p_.row(kJerk).setZero();
   p_.col(kJerk).setZero();
   acc_up_ = acc_down_ = Cusum{};
@@ -261,6 +266,7 @@ void FusionFilter::seed_from_fixes() {
   x_(kPos) = fit(0);
   x_(kVel) = fit(1);
   x_(kAcc) = fit(2);
+  delay_sens_.head<3>().setZero();  // the fixes do not depend on the accelerometer
   for (int r = kPos; r <= kAcc; ++r) {
     p_.row(r).setZero();
     p_.col(r).setZero();
@@ -333,6 +339,10 @@ double FusionFilter::scalar_update(const Row& h, double innovation, double r, do
   if (!applied) return nu_norm;
   const Vec k = ph / s;
   x_ += k * innovation;
+  // The estimate's sensitivity to the accelerometer's delay goes through the update
+  // as the estimate does: x += k (z - h x).
+  delay_sens_ -= k * h.dot(delay_sens_);
+  last_gain_ = k;
   if (steady_) {
     // Joseph form of the update on the excess (no measurement noise in it).
     const Eigen::Vector3d k3 = k.head<3>();
@@ -414,8 +424,13 @@ double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bo
     }
   }
   const double a_before = x_(kAcc);
+  const double jerk_before = x_(kJerk);
   const double nu_norm = scalar_update(h, nu, r, gate_sigma, applied);
   if (!applied) return nu_norm;  // a spike tells nothing about the motion
+  // Had the delay been longer by e, the reading would have been scale * j * e
+  // lower than predicted, and the update would have taken that in (the sensitivity
+  // is the estimate's error per second of delay error).
+  delay_sens_ -= last_gain_ * (scale * jerk_before);
   // The reading shows a step after it happened, and the jerk state, made for
   // smooth changes, cannot say so: what the carriage did in the meantime at the new
   // acceleration is added, as it happened.
@@ -426,6 +441,9 @@ double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bo
     const double da = x_(kAcc) - a_before;
     x_(kVel) += da * since;
     x_(kPos) += 0.5 * da * since * since;
+    // A delay longer by e: the step happened e earlier than added for here.
+    delay_sens_(kVel) -= da;
+    delay_sens_(kPos) -= da * since;
     // When within the period it happened is uniform over ts: that much velocity
     // and position are unknown, which the Hall fixes settle in a few samples.
     const double var_t = ts_ * ts_ / 12.0;
@@ -454,12 +472,14 @@ double FusionFilter::update_accel(double z_mps2, double r, double gate_sigma, bo
 double FusionFilter::position_variance() const {
   const double p = p_(kPos, kPos);
   const double sys = tuning_.hall_systematic_std_m;
-  return std::max(p - excess_(0, 0), 0.1 * p) + sys * sys;
+  const double dly = delay_sens_(kPos) * model_.accel_delay_std_s;
+  return std::max(p - excess_(0, 0), 0.1 * p) + sys * sys + dly * dly;
 }
 
 double FusionFilter::velocity_variance() const {
   const double p = p_(kVel, kVel);
-  return std::max(p - excess_(1, 1), 0.1 * p);
+  const double dly = delay_sens_(kVel) * model_.accel_delay_std_s;
+  return std::max(p - excess_(1, 1), 0.1 * p) + dly * dly;
 }
 
 double FusionFilter::vibration_amplitude_mps2() const {

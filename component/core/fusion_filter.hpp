@@ -28,6 +28,12 @@
 //    gains: the acceleration did hold still, and otherwise the model is left;
 //  - the published position sigma adds the Hall table's systematic error
 //    (hall_systematic_std_m), which no averaging removes;
+//  - the accelerometer's delay is known to the calibration's accel_delay_std_s:
+//    read at the wrong instant, every change of acceleration leaves an error in
+//    the velocity and position. The filter carries the sensitivity of its state
+//    to that delay (what each update and prediction makes of it, with its own
+//    gains: a consider parameter), and the published sigmas add it times the
+//    delay's sigma;
 //  - detection of a step in the accelerometer's bias: a CUSUM of the Hall
 //    innovations that widens the bias covariance, so the bias state follows.
 // Fixed-size Eigen and arrays; nothing allocates per sample.
@@ -152,6 +158,11 @@ class FusionFilter {
   Mat a_;
   Mat q_;
   Vec x_ = Vec::Zero();
+  /// d(estimate's error)/d(accelerometer delay): what the calibrated delay being
+  /// short of the true one has moved the estimate by, per second of the shortfall
+  /// (see position_variance()).
+  Vec delay_sens_ = Vec::Zero();
+  Vec last_gain_ = Vec::Zero();  ///< the last scalar update's gain
   Mat p_ = Mat::Identity();
   FilterConfig tuning_;
   SensorModel model_;

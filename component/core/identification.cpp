@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <limits>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <unsupported/Eigen/FFT>
 
@@ -161,6 +162,120 @@ void find_vibration(const std::vector<ReferenceSegment>& segments, const std::ve
   const double f = 0.5 * (a + b);
   rep.vibration_hz = f;
   rep.vibration_mps2 = line(f);
+}
+
+/// The accelerometer's delay, scale and bias refined about `delay` (within
+/// kRefineSamples sample periods either side) with the frame's vibration at `hz`
+/// (0: none found) fitted alongside, its phase free per segment: the vibration
+/// does not follow the carriage, but left in the readings it is noise to the fit,
+/// and it moved the delay by up to 30 us (population motors 1 and 12, a 0.05 m/s^2
+/// line at 46-59 Hz), which the filter then took as a velocity error at every
+/// change of acceleration. The fit is linear in the reference's two neighbouring
+/// samples, so one pass over the samples per whole-sample shift gives every
+/// fractional delay between them. Only the fast motion takes part (faster than
+/// `fast_speed_mps` or harder than `fast_accel_mps2`): the slow sweep's turns are
+/// steps of acceleration, which a reading sampled without filtering places only to
+/// within a sample period, and they pulled the delay by up to 12 us at 2.8-3.1 kHz
+/// with noise and vibration absent (population motors 5 and 7). False when the fit
+/// cannot be made.
+bool refine_accel_fit(const std::vector<ReferenceSegment>& segments, const std::vector<SegmentKinematics>& kin,
+                      const std::vector<std::vector<double>>& reading, const std::vector<std::vector<char>>& reading_ok,
+                      double ts, double delay, double hz, double fast_speed_mps, double fast_accel_mps2,
+                      double& out_delay, double& out_delay_std, double& out_scale, double& out_bias, double& out_rms) {
+  constexpr int kRefineSamples = 2;
+  constexpr int kMaxSegments = 4;
+  const int segs = static_cast<int>(std::min<std::size_t>(segments.size(), kMaxSegments));
+  const int lines = hz > 0.0 ? 2 * segs : 0;
+  const int p = 3 + lines;  // a(j0), a(j1), 1, then cos and sin per segment
+  using Mat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic>;
+  using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1>;
+  const double centre = delay / ts;
+  const int w_lo = std::max(0, static_cast<int>(std::floor(centre)) - kRefineSamples);
+  const int w_hi = static_cast<int>(std::floor(centre)) + kRefineSamples;
+  double best_rms = std::numeric_limits<double>::infinity();
+  std::vector<double> shifts, rmss;
+  long n_best = 0;
+  Vec u(p);
+  for (int w = w_lo; w <= w_hi; ++w) {
+    Mat gram = Mat::Zero(p, p);
+    Vec cross = Vec::Zero(p);
+    double zz = 0.0;
+    long n = 0;
+    for (int g = 0; g < segs; ++g) {
+      const auto& ka = kin[static_cast<std::size_t>(g)].a;
+      const auto& kv = kin[static_cast<std::size_t>(g)].valid;
+      const auto& kvel = kin[static_cast<std::size_t>(g)].v;
+      const auto& z = reading[static_cast<std::size_t>(g)];
+      const auto& zok = reading_ok[static_cast<std::size_t>(g)];
+      const auto& ss = segments[static_cast<std::size_t>(g)].samples;
+      const auto whole = static_cast<std::size_t>(w);
+      const double omega = 2.0 * M_PI * hz;
+      for (std::size_t i = whole + 1; i < z.size(); ++i) {
+        const std::size_t j0 = i - whole, j1 = i - whole - 1;
+        if (!kv[j0] || !kv[j1] || !zok[i]) continue;
+        if (std::abs(kvel[j0]) <= fast_speed_mps && std::abs(ka[j0]) <= fast_accel_mps2) continue;
+        u.setZero();
+        u(0) = ka[j0];
+        u(1) = ka[j1];
+        u(2) = 1.0;
+        if (lines > 0) {
+          const double t = static_cast<double>(ss[i].t_ns - ss.front().t_ns) * 1e-9;
+          u(3 + 2 * g) = std::cos(omega * t);
+          u(4 + 2 * g) = std::sin(omega * t);
+        }
+        gram.selfadjointView<Eigen::Lower>().rankUpdate(u);
+        cross += u * z[i];
+        zz += z[i] * z[i];
+        ++n;
+      }
+    }
+    if (n < 3 * p) continue;
+    gram = gram.selfadjointView<Eigen::Lower>();
+    // The fractional delay f: a(t - (w + f) ts) = (1 - f) a(j0) + f a(j1).
+    for (int k = 0; k < 20; ++k) {
+      const double f = k / 20.0;
+      Mat t = Mat::Zero(p - 1, p);
+      t(0, 0) = 1.0 - f;
+      t(0, 1) = f;
+      for (int c = 2; c < p; ++c) t(c - 1, c) = 1.0;
+      const Mat gf = t * gram * t.transpose();
+      const Vec bf = t * cross;
+      const Eigen::LDLT<Mat> ldlt(gf);
+      if (ldlt.info() != Eigen::Success) continue;
+      const Vec theta = ldlt.solve(bf);
+      const double rss = std::max(0.0, zz - bf.dot(theta));
+      const double rms = std::sqrt(rss / static_cast<double>(n));
+      shifts.push_back(w + f);
+      rmss.push_back(rms);
+      if (rms < best_rms && theta(0) != 0.0) {
+        best_rms = rms;
+        out_delay = (w + f) * ts;
+        out_scale = theta(0);
+        out_bias = theta(1);
+        out_rms = rms;
+        n_best = n;
+      }
+    }
+  }
+  if (!std::isfinite(best_rms)) return false;
+  // Parabolic refinement between the grid's points, as the scan does. The mean
+  // square residual's curvature there is what a delay error costs per sample: with
+  // the residual's own variance it gives the delay's standard error (least squares,
+  // the residual taken as white).
+  out_delay_std = std::numeric_limits<double>::quiet_NaN();
+  const double h = 0.05 * ts;
+  for (std::size_t k = 1; k + 1 < shifts.size(); ++k) {
+    if (std::abs(shifts[k] * ts - out_delay) > 1e-15) continue;
+    if (std::abs(shifts[k + 1] - shifts[k] - 0.05) > 1e-9 || std::abs(shifts[k] - shifts[k - 1] - 0.05) > 1e-9) break;
+    const double y0 = rmss[k - 1] * rmss[k - 1], y1 = rmss[k] * rmss[k], y2 = rmss[k + 1] * rmss[k + 1];
+    const double curv = y0 - 2.0 * y1 + y2;
+    if (curv > 0.0) {
+      out_delay += 0.5 * h * (y0 - y2) / curv;
+      out_delay_std = std::sqrt(2.0 * h * h * y1 / (curv * static_cast<double>(std::max(n_best - p, 1L))));
+    }
+    break;
+  }
+  return true;
 }
 
 }  // namespace
@@ -528,6 +643,16 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
     rep.accel_delay_s = best_delay;
     rep.accel_fit_residual_mps2 = best_rms;
     find_vibration(segments, kin, best_scale, best_bias, best_delay, cfg, rep);
+    double d = 0.0, d_std = 0.0, sc = 0.0, b = 0.0, rms = 0.0;
+    if (refine_accel_fit(segments, kin, reading, reading_ok, ts0, best_delay, rep.vibration_hz,
+                         cfg.sweep_max_speed_mps, cfg.dynamic_min_accel_mps2, d, d_std, sc, b, rms)) {
+      rep.accel_delay_std_s = d_std;
+      rep.accel_scale = sc;
+      rep.accel_bias_mps2 = b;
+      rep.accel_delay_s = d;
+      rep.accel_fit_residual_mps2 = rms;
+      if (rep.vibration_hz > 0.0) find_vibration(segments, kin, sc, b, d, cfg, rep);
+    }
   } else {
     // Without fast motion only the bias can be had: the mean reading while still or slow.
     Regression r;
@@ -546,6 +671,9 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   out.model.table_noise_v = std::round(std::min(rep.table_noise_mv * 1e-3, 0.1) * 1e7) / 1e7;
   out.model.coil_field_v_per_mps2 = rep.coil_field_v_per_mps2;
   out.model.accel_delay_s = rep.accel_delay_s;
+  // To 1 ns, as the calibration file writes it.
+  out.model.accel_delay_std_s =
+      std::isfinite(rep.accel_delay_std_s) ? std::round(std::min(rep.accel_delay_std_s, 0.01) * 1e9) / 1e9 : 0.0;
   out.model.accel_bias_mps2 = rep.accel_bias_mps2;
   out.model.accel_scale = rep.accel_scale;
   out.model.frame_vibration_hz = rep.vibration_hz;

@@ -104,6 +104,8 @@ struct IdentificationReport {
   double accel_scale = 1.0;
   double accel_bias_mps2 = 0.0;
   double accel_delay_s = 0.0;
+  /// Its standard error from the fit (NaN: not known) [s].
+  double accel_delay_std_s = std::numeric_limits<double>::quiet_NaN();
   double accel_fit_residual_mps2 = 0.0;  ///< RMS of the accelerometer after the fit
   bool frame_accelerometer_used = false;
   double vibration_hz = 0.0;             ///< frame vibration found in the accelerometer; 0 = none

@@ -53,6 +53,11 @@ struct SensorModel {
   double coil_field_v_per_mps2 = 0.0;
   /// The accelerometer reads the acceleration this long before the sample instant [s].
   double accel_delay_s = 0.0;
+  /// How well the calibration knows that delay, one sigma (0: not known, taken as
+  /// exact). A delay error makes the filter read the acceleration at the wrong
+  /// instant: at every change of acceleration a velocity error of about the error
+  /// times the change, which the published sigmas hold (FusionFilter) [s].
+  double accel_delay_std_s = 0.0;
   /// Accelerometer reading = accel_scale * a + accel_bias_mps2 (initial values;
   /// the filter keeps estimating both).
   double accel_bias_mps2 = 0.0;

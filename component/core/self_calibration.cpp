@@ -306,6 +306,7 @@ class AccelerometerSeries {
 struct AccelFit {
   bool ok = false;
   double scale = 1.0, bias = 0.0, delay_s = 0.0, residual_mps2 = 0.0;
+  double delay_std_s = 0.0;  ///< the delay's standard error (0: not known)
   long dynamic_samples = 0;
 };
 
@@ -477,7 +478,17 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& estimate,
     const double y1 = best * best;
     const double y2 = scan[static_cast<std::size_t>(best_i + 1)] * scan[static_cast<std::size_t>(best_i + 1)];
     const double curv = y0 - 2.0 * y1 + y2;
-    if (curv > 0.0) fit.delay_s += 0.5 * step * (y0 - y2) / curv;
+    if (curv > 0.0) {
+      fit.delay_s += 0.5 * step * (y0 - y2) / curv;
+      // The delay's standard error from the mean square's curvature, as least squares
+      // gives it for a white residual; through the filter the residual is correlated
+      // over its window, so the samples count once per window.
+      std::size_t n = 0;
+      for (const auto& idx : fast) n += idx.size();
+      const int m = fl.empty() ? ic.derivative_half_window : m_long;
+      const double windows = static_cast<double>(n) / static_cast<double>(m + 1);
+      if (windows > 1.0) fit.delay_std_s = std::sqrt(2.0 * step * step * y1 / (curv * windows));
+    }
   }
   fit.residual_mps2 = best;
   {
@@ -1044,6 +1055,9 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
         cal.model.accel_scale = idrep.accel_scale = af.scale;
         cal.model.accel_bias_mps2 = idrep.accel_bias_mps2 = af.bias;
         cal.model.accel_delay_s = idrep.accel_delay_s = af.delay_s;
+        idrep.accel_delay_std_s = af.delay_std_s;
+        // To 1 ns, as the calibration file writes it.
+        cal.model.accel_delay_std_s = std::round(std::min(af.delay_std_s, 0.01) * 1e9) / 1e9;
         idrep.accel_fit_residual_mps2 = af.residual_mps2;
         accel_bias = af.bias;
       }
@@ -1122,7 +1136,10 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   rep.last_change_m = change_m;
   out = cal;
   out.model.hall_delay_s = hall_delay;
-  if (accel_given) out.model.accel_delay_s = cfg.accel_delay_s;
+  if (accel_given) {
+    out.model.accel_delay_s = cfg.accel_delay_s;
+    out.model.accel_delay_std_s = 0.0;  // the data sheet's, taken as given
+  }
   out.info.method = "no-reference";
   rep.identification = idrep;
   auto& r = rep.identification;
