@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <limits>
 
@@ -44,10 +45,20 @@ std::string format_identification_report(const config::AxisConfig& axis, const c
          r.hall_delay_from_fast_motion ? "the calibration uses it (the sweep's agrees within 1 us)"
                                        : "NOT used: it disagrees with the sweep's (see the problems)");
   line("  %d samples with |a| >= 1 m/s^2, up to %.1f m/s^2\n", r.dynamic_samples, r.dynamic_max_accel_mps2);
-  line("  coil field: %.3f mV per m/s^2 (common mode on all Halls)\n", r.coil_field_v_per_mps2 * 1e3);
-  line("  accelerometer%s: scale %.5f, bias %+.4f m/s^2, delay %.1f us, fit residual %.4f m/s^2 RMS\n",
-       r.frame_accelerometer_used ? " (minus the frame accelerometer)" : "", r.accel_scale, r.accel_bias_mps2,
-       r.accel_delay_s * 1e6, r.accel_fit_residual_mps2);
+  if (std::isfinite(r.coil_field_std_v_per_mps2))
+    line("  coil field: %.4f mV per m/s^2 +- %.4f (1 sigma; common mode on all Halls)\n", r.coil_field_v_per_mps2 * 1e3,
+         r.coil_field_std_v_per_mps2 * 1e3);
+  else
+    line("  coil field: %.3f mV per m/s^2 (common mode on all Halls)\n", r.coil_field_v_per_mps2 * 1e3);
+  if (std::isfinite(r.accel_delay_std_s) && r.accel_delay_std_s > 0.0)
+    line("  accelerometer%s: scale %.5f, bias %+.4f m/s^2, delay %.1f us +- %.1f us (1 sigma), fit residual %.4f m/s^2 "
+         "RMS\n",
+         r.frame_accelerometer_used ? " (minus the frame accelerometer)" : "", r.accel_scale, r.accel_bias_mps2,
+         r.accel_delay_s * 1e6, r.accel_delay_std_s * 1e6, r.accel_fit_residual_mps2);
+  else
+    line("  accelerometer%s: scale %.5f, bias %+.4f m/s^2, delay %.1f us, fit residual %.4f m/s^2 RMS\n",
+         r.frame_accelerometer_used ? " (minus the frame accelerometer)" : "", r.accel_scale, r.accel_bias_mps2,
+         r.accel_delay_s * 1e6, r.accel_fit_residual_mps2);
   line("  Hall position vs %s in fast motion: %.3f um RMS compensated (%.3f um without); "
        "the fixes' own noise %.3f um RMS, beyond it %.3f um\n",
        self != nullptr ? "the self-made estimate (made of them: a consistency figure, not judged)" : "reference",

@@ -198,6 +198,8 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     };
     model("hall_delay_s", cal.model.hall_delay_s, 0.0, 0.01, "s");
     model("coil_field_v_per_mps2", cal.model.coil_field_v_per_mps2, -1.0, 1.0, "V/(m/s^2)");
+    // Optional: files written before it was measured have none (taken as exact).
+    model("coil_field_std_v_per_mps2", cal.model.coil_field_std_v_per_mps2, 0.0, 1.0, "V/(m/s^2)");
     model("accel_delay_s", cal.model.accel_delay_s, 0.0, 0.01, "s");
     // Optional: files written before it was measured have none (taken as exact).
     model("accel_delay_std_s", cal.model.accel_delay_std_s, 0.0, 0.01, "s");
@@ -422,6 +424,12 @@ std::string format_calibration(const core::Calibration& cal) {
                   m.hall_delay_s, m.coil_field_v_per_mps2, m.accel_delay_s, m.accel_bias_mps2, m.accel_scale,
                   m.frame_vibration_hz, m.frame_vibration_mps2);
     out += buf;
+    if (m.coil_field_std_v_per_mps2 > 0.0) {
+      std::snprintf(buf, sizeof buf,
+                    "  coil_field_std_v_per_mps2: %.9f   # how well the calibration knows the coil field, one sigma\n",
+                    m.coil_field_std_v_per_mps2);
+      out += buf;
+    }
     if (m.accel_delay_std_s > 0.0) {
       std::snprintf(buf, sizeof buf,
                     "  accel_delay_std_s: %.9f     # how well the calibration knows that delay, one sigma\n",

@@ -260,6 +260,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   }
   fix.quantisation_m2 = quantisation_v2_ * gain_sq;
   fix.sensitivity_m2_per_v2 = gain_sq;
+  for (int q = 0; q < n_on; ++q) fix.offset_sensitivity_m_per_v += c[static_cast<std::size_t>(on[q])];
   // A sensor's own gain error moves its reading by its level about mid times the
   // error: the position's variance per unit of such errors, independent per sensor.
   // A gain error all sensors share moves the fix by its sum of those, signed. Only

@@ -39,6 +39,10 @@ struct HallFix {
   /// [m^2/V^2]: a reading error common to the table's place (its noise,
   /// SensorModel::table_noise_v) moves the fix by this times its variance.
   double sensitivity_m2_per_v2 = 0.0;
+  /// The sensitivities summed with their signs [m/V]: an offset common to every
+  /// reading (the coil field's, SensorModel::coil_field_std_v_per_mps2) moves the fix
+  /// by this times the offset.
+  double offset_sensitivity_m_per_v = 0.0;
   /// The sum over the sensors used of the squared sensitivity of the position to the
   /// sensor's reading times the reading's level about mid [m^2]: independent relative
   /// errors of the sensors' gains, of variance g each, move the fix by this times g.

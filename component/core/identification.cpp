@@ -164,6 +164,45 @@ void find_vibration(const std::vector<ReferenceSegment>& segments, const std::ve
   rep.vibration_mps2 = line(f);
 }
 
+/// Segments are recorded separately; their sample times are set this far apart
+/// when blocks of time are formed across them, so no block spans two.
+constexpr std::int64_t kSegmentGapNs = 1000000000000LL;
+
+/// Standard error of the slope of a straight-line fit y = slope x + intercept whose
+/// residuals are correlated over short stretches of time (the table's own errors
+/// repeat along the travel, and in fast motion a stretch of it passes in tens of
+/// ms): the residuals' products with the centred regressor are summed per block of
+/// kBlockNs and the blocks taken as independent (a clustered, "sandwich" variance).
+/// `t_ns` in time order. NaN when there are fewer than kMinBlocks blocks.
+double clustered_slope_std(const std::vector<double>& x, const std::vector<double>& y,
+                           const std::vector<std::int64_t>& t_ns, double slope, double intercept) {
+  constexpr std::int64_t kBlockNs = 50000000;  // 50 ms
+  constexpr int kMinBlocks = 10;
+  const std::size_t n = x.size();
+  if (n < 3 || y.size() != n || t_ns.size() != n) return std::numeric_limits<double>::quiet_NaN();
+  double mx = 0.0;
+  for (double v : x) mx += v;
+  mx /= static_cast<double>(n);
+  double sxx = 0.0, meat = 0.0, block = 0.0;
+  int blocks = 0;
+  std::int64_t block_start = t_ns[0];
+  for (std::size_t i = 0; i < n; ++i) {
+    if (t_ns[i] - block_start >= kBlockNs) {
+      meat += block * block;
+      block = 0.0;
+      ++blocks;
+      block_start = t_ns[i];
+    }
+    const double dx = x[i] - mx;
+    sxx += dx * dx;
+    block += dx * (y[i] - slope * x[i] - intercept);
+  }
+  meat += block * block;
+  ++blocks;
+  if (blocks < kMinBlocks || !(sxx > 0.0)) return std::numeric_limits<double>::quiet_NaN();
+  return std::sqrt(meat * blocks / (blocks - 1.0)) / sxx;
+}
+
 /// The accelerometer's delay, scale and bias refined about `delay` (within
 /// kRefineSamples sample periods either side) with the frame's vibration at `hz`
 /// (0: none found) fitted alongside, its phase free per segment: the vibration
@@ -187,8 +226,27 @@ bool refine_accel_fit(const std::vector<ReferenceSegment>& segments, const std::
   const int segs = static_cast<int>(std::min<std::size_t>(segments.size(), kMaxSegments));
   const int lines = hz > 0.0 ? 2 * segs : 0;
   const int p = 3 + lines;  // a(j0), a(j1), 1, then cos and sin per segment
-  using Mat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic>;
-  using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1>;
+  constexpr int kMaxP = 3 + 2 * kMaxSegments;
+  using Mat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxP, kMaxP>;
+  using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxP, 1>;
+  // The fast samples of each segment, and the vibration's sine and cosine at them,
+  // listed once: every shift visits them.
+  std::vector<std::vector<std::size_t>> fast(static_cast<std::size_t>(segs));
+  std::vector<std::vector<double>> cs(static_cast<std::size_t>(segs)), sn(static_cast<std::size_t>(segs));
+  for (int g = 0; g < segs; ++g) {
+    const auto gi = static_cast<std::size_t>(g);
+    const auto& ss = segments[gi].samples;
+    for (std::size_t i = 0; i < reading[gi].size(); ++i) {
+      if (!reading_ok[gi][i] || !kin[gi].valid[i]) continue;
+      if (std::abs(kin[gi].v[i]) <= fast_speed_mps && std::abs(kin[gi].a[i]) <= fast_accel_mps2) continue;
+      fast[gi].push_back(i);
+      if (lines > 0) {
+        const double t = static_cast<double>(ss[i].t_ns - ss.front().t_ns) * 1e-9;
+        cs[gi].push_back(std::cos(2.0 * M_PI * hz * t));
+        sn[gi].push_back(std::sin(2.0 * M_PI * hz * t));
+      }
+    }
+  }
   const double centre = delay / ts;
   const int w_lo = std::max(0, static_cast<int>(std::floor(centre)) - kRefineSamples);
   const int w_hi = static_cast<int>(std::floor(centre)) + kRefineSamples;
@@ -202,26 +260,23 @@ bool refine_accel_fit(const std::vector<ReferenceSegment>& segments, const std::
     double zz = 0.0;
     long n = 0;
     for (int g = 0; g < segs; ++g) {
-      const auto& ka = kin[static_cast<std::size_t>(g)].a;
-      const auto& kv = kin[static_cast<std::size_t>(g)].valid;
-      const auto& kvel = kin[static_cast<std::size_t>(g)].v;
-      const auto& z = reading[static_cast<std::size_t>(g)];
-      const auto& zok = reading_ok[static_cast<std::size_t>(g)];
-      const auto& ss = segments[static_cast<std::size_t>(g)].samples;
+      const auto gi = static_cast<std::size_t>(g);
+      const auto& ka = kin[gi].a;
+      const auto& kv = kin[gi].valid;
+      const auto& z = reading[gi];
       const auto whole = static_cast<std::size_t>(w);
-      const double omega = 2.0 * M_PI * hz;
-      for (std::size_t i = whole + 1; i < z.size(); ++i) {
+      for (std::size_t q = 0; q < fast[gi].size(); ++q) {
+        const std::size_t i = fast[gi][q];
+        if (i < whole + 1) continue;
         const std::size_t j0 = i - whole, j1 = i - whole - 1;
-        if (!kv[j0] || !kv[j1] || !zok[i]) continue;
-        if (std::abs(kvel[j0]) <= fast_speed_mps && std::abs(ka[j0]) <= fast_accel_mps2) continue;
+        if (!kv[j0] || !kv[j1]) continue;
         u.setZero();
         u(0) = ka[j0];
         u(1) = ka[j1];
         u(2) = 1.0;
         if (lines > 0) {
-          const double t = static_cast<double>(ss[i].t_ns - ss.front().t_ns) * 1e-9;
-          u(3 + 2 * g) = std::cos(omega * t);
-          u(4 + 2 * g) = std::sin(omega * t);
+          u(3 + 2 * g) = cs[gi][q];
+          u(4 + 2 * g) = sn[gi][q];
         }
         gram.selfadjointView<Eigen::Lower>().rankUpdate(u);
         cross += u * z[i];
@@ -523,6 +578,9 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   // --- 3. fast motion: coil field and accelerometer -----------------------------------
   const double smax_table = max_table_slope(table);
   Regression coil;
+  // The samples of the coil's fit in time order (its standard error below).
+  std::vector<double> coil_a, coil_r;
+  std::vector<std::int64_t> coil_t;
   for (std::size_t g = 0; g < segments.size(); ++g) {
     const auto& seg = segments[g];
     for (std::size_t i = 0; i < seg.samples.size(); ++i) {
@@ -541,14 +599,22 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
         sum += y - t;
         ++n;
       }
-      if (n > 0) coil.add(kin[g].a[i], sum / n);
+      if (n > 0) {
+        coil.add(kin[g].a[i], sum / n);
+        coil_a.push_back(kin[g].a[i]);
+        coil_r.push_back(sum / n);
+        coil_t.push_back(seg.samples[i].t_ns + static_cast<std::int64_t>(g) * kSegmentGapNs);
+      }
     }
   }
   double coil_field = 0.0;
   const bool have_dynamic = rep.dynamic_samples >= cfg.dynamic_min_samples;
   if (have_dynamic) {
     double intercept, rms;
-    if (coil.solve(coil_field, intercept, rms)) rep.coil_field_v_per_mps2 = coil_field;
+    if (coil.solve(coil_field, intercept, rms)) {
+      rep.coil_field_v_per_mps2 = coil_field;
+      rep.coil_field_std_v_per_mps2 = clustered_slope_std(coil_a, coil_r, coil_t, coil_field, intercept);
+    }
     // With the coil field known, the readings at the ends of the sweep (where it
     // turns) are corrected too.
     if (std::abs(coil_field) > 0.0 && !build_table(hall_delay, coil_field, table)) {
@@ -670,6 +736,9 @@ bool identify_with_reference(const MotorConfig& motor, const std::vector<Referen
   // To 0.1 uV, as the calibration file writes it (the checksum is over what it holds).
   out.model.table_noise_v = std::round(std::min(rep.table_noise_mv * 1e-3, 0.1) * 1e7) / 1e7;
   out.model.coil_field_v_per_mps2 = rep.coil_field_v_per_mps2;
+  out.model.coil_field_std_v_per_mps2 = std::isfinite(rep.coil_field_std_v_per_mps2)
+                                            ? std::round(std::min(rep.coil_field_std_v_per_mps2, 1.0) * 1e9) / 1e9
+                                            : 0.0;
   out.model.accel_delay_s = rep.accel_delay_s;
   // To 1 ns, as the calibration file writes it.
   out.model.accel_delay_std_s =

@@ -101,6 +101,8 @@ struct IdentificationReport {
   int dynamic_samples = 0;
   double dynamic_max_accel_mps2 = 0.0;
   double coil_field_v_per_mps2 = 0.0;
+  /// Its standard error from the fit (NaN: not known) [V per m/s^2].
+  double coil_field_std_v_per_mps2 = std::numeric_limits<double>::quiet_NaN();
   double accel_scale = 1.0;
   double accel_bias_mps2 = 0.0;
   double accel_delay_s = 0.0;

@@ -51,6 +51,11 @@ struct SensorModel {
   /// Common-mode Hall offset from the motor coils' field, proportional to the
   /// force and so to the acceleration [V per m/s^2].
   double coil_field_v_per_mps2 = 0.0;
+  /// How well the calibration knows it, one sigma (0: not known, taken as exact). A
+  /// coil field error moves every reading alike in proportion to the acceleration,
+  /// and the fix by its sensitivity to such a common offset, which the published
+  /// sigmas hold (AxisPipeline) [V per m/s^2].
+  double coil_field_std_v_per_mps2 = 0.0;
   /// The accelerometer reads the acceleration this long before the sample instant [s].
   double accel_delay_s = 0.0;
   /// How well the calibration knows that delay, one sigma (0: not known, taken as

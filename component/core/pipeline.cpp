@@ -458,6 +458,15 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       // the nodes the carriage crosses.
       const double nodes = speed * averaged_s / hall_.table().step_m;
       table_var_m2_ = table_noise_v2_ * fix.sensitivity_m2_per_v2 / (1.0 + nodes);
+      // The coil field is known to the calibration's sigma: its error is an offset on
+      // every reading in proportion to the force, and moves the fix by the fix's
+      // sensitivity to a common offset. Taken as it is now (the acceleration changes
+      // as fast as the filter averages), and its change with the jerk as a velocity error.
+      const double coil_std = cfg_.sensors.coil_field_std_v_per_mps2 * fix.offset_sensitivity_m_per_v;
+      const double coil_m = coil_std * kf_.state()(FusionFilter::kAcc);
+      const double coil_mps = coil_std * kf_.state()(FusionFilter::kJerk);
+      coil_var_m2_ = coil_m * coil_m;
+      coil_jerk_var_ = coil_mps * coil_mps;
       // A gain or offset error moves the fixes by a pattern that repeats with the
       // magnet period: it averages out over a good part of one.
       const double quarters = speed * averaged_s / (0.25 * cfg_.motor.magnet_pitch_m);
@@ -527,8 +536,9 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   const bool beyond_passes = cfg_.sensors.trusted_span_known() && (out_.position_m < cfg_.sensors.table_trusted_from_m ||
                                                                     out_.position_m > cfg_.sensors.table_trusted_to_m);
   const double beyond_m = beyond_passes ? cfg_.sensors.table_outside_std_m : 0.0;
-  out_.position_std_m = std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + table_var_m2_ +
-                                  drift_var_m2_ + unread_var_m2_ + scale_m * scale_m + beyond_m * beyond_m);
+  out_.position_std_m =
+      std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + table_var_m2_ + drift_var_m2_ +
+                unread_var_m2_ + coil_var_m2_ + scale_m * scale_m + beyond_m * beyond_m);
   const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
   // The disagreement is a position error too (in the published sigma above), and it
   // repeats with the magnet period like the drift's: crossed at this speed it is a
@@ -539,8 +549,11 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
   // (motor 8 of the population at 1 m/s: 35 % of the velocity within 2 sigma).
   const double wt = pattern_rate_ * averaged_s_;
   const double disagreement_velocity_var = disagreement_var_m2_ * pattern_rate_ * pattern_rate_ / (1.0 + wt * wt);
-  out_.velocity_std_mps =
-      std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + disagreement_velocity_var + scale_mps * scale_mps);
+  // The coil field's error likewise: the fix's sensitivity to it changes along the
+  // magnet period, and with the acceleration.
+  const double coil_velocity_var = coil_var_m2_ * pattern_rate_ * pattern_rate_ / (1.0 + wt * wt) + coil_jerk_var_;
+  out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + disagreement_velocity_var +
+                                    coil_velocity_var + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
 
   // A bias far from its calibrated value: the accelerometer has changed (it is still

@@ -138,6 +138,10 @@ class AxisPipeline {
   /// noise's variance as a reading [V^2].
   double table_var_m2_ = 0.0;
   double table_noise_v2_ = 0.0;
+  /// What the coil field's uncertainty leaves in the last fix at the current
+  /// acceleration [m^2], and its change with the jerk [(m/s)^2].
+  double coil_var_m2_ = 0.0;
+  double coil_jerk_var_ = 0.0;
   /// Likewise the sensors' gain and offset uncertainty (HallFix::drift_m2) [m^2].
   double drift_var_m2_ = 0.0;
   /// The velocity error that drift's pattern makes at the current speed [(m/s)^2].
