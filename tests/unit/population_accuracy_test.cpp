@@ -322,6 +322,18 @@ TEST_P(PopulationAccelDelayIdeal, TheSweepsTurnsDoNotTimeTheAccelerometer) {
   EXPECT_NEAR(cal.model.accel_delay_s, im.accel_delay_s, 4e-6);
 }
 
+/// The motor's point-to-point run, as calibrated, with the calibration `c` after
+/// `set` changed it: its error statistics.
+template <class Set>
+core::EstimateErrors point_to_point_errors(const sim::PopulationMotor& p, const bench::CalibrationOutcome& c,
+                                       std::uint64_t noise_seed, Set set) {
+  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[4];
+  EXPECT_EQ(sc.name, std::string("point-to-point"));
+  auto cc = c;
+  set(cc.cal.model);
+  return bench::run_population_scenario(p, cc, sc, bench::Condition::as_calibrated, noise_seed).err;
+}
+
 // The filter holds what a delay error does: every change of acceleration read at the
 // wrong instant leaves an error in the velocity and the position (a consider
 // parameter, FusionFilter). Motor 11 in point-to-point moves, its calibrated delay
@@ -332,13 +344,9 @@ TEST(PopulationAccelDelaySigma, TheSigmaHoldsADelayErrorTheCalibrationAdmits) {
   auto c = calibrated_with_a_ruler(p);
   ASSERT_TRUE(c.ok && c.good) << c.error;
   c.cal.model.accel_delay_s += 20e-6;
-  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[4];
-  ASSERT_EQ(sc.name, std::string("point-to-point"));
   auto coverage = [&](double std_s) {
-    auto cc = c;
-    cc.cal.model.accel_delay_std_s = std_s;
-    const auto r = bench::run_population_scenario(p, cc, sc, bench::Condition::as_calibrated, 1011);
-    return r.err.velocity_coverage();
+    return point_to_point_errors(p, c, 1011, [&](core::SensorModel& m) { m.accel_delay_std_s = std_s; })
+        .velocity_coverage();
   };
   const double with = coverage(20e-6), without = coverage(0.0);
   std::printf("[ figures  ] delay 20 us off: velocity within 2 sigma %.1f %% with its sigma held, %.1f %% without\n",
@@ -360,13 +368,9 @@ TEST(PopulationCoilFieldSigma, TheSigmaHoldsACoilFieldErrorTheCalibrationAdmits)
   EXPECT_GT(c.cal.model.coil_field_std_v_per_mps2, 0.0) << "the calibration gave the coil field no standard error";
   const double off = 0.015 * std::abs(c.cal.model.coil_field_v_per_mps2);
   c.cal.model.coil_field_v_per_mps2 += off;
-  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[4];
-  ASSERT_EQ(sc.name, std::string("point-to-point"));
   auto coverage = [&](double std_v) {
-    auto cc = c;
-    cc.cal.model.coil_field_std_v_per_mps2 = std_v;
-    const auto r = bench::run_population_scenario(p, cc, sc, bench::Condition::as_calibrated, 1051);
-    return r.err.position_coverage();
+    return point_to_point_errors(p, c, 1051, [&](core::SensorModel& m) { m.coil_field_std_v_per_mps2 = std_v; })
+        .position_coverage();
   };
   const double with = coverage(off), without = coverage(0.0);
   std::printf("[ figures  ] coil field %.1f uV/(m/s^2) off: position within 2 sigma %.1f %% with its sigma held, "
