@@ -482,7 +482,8 @@ AccelFit fit_accelerometer(const std::vector<ReferenceSegment>& estimate,
       fit.delay_s += 0.5 * step * (y0 - y2) / curv;
       // The delay's standard error from the mean square's curvature, as least squares
       // gives it for a white residual; through the filter the residual is correlated
-      // over its window, so the samples count once per window.
+      // over its window, and the samples count once per half window (error / sigma
+      // 0.98 RMS on population motors 1-20, 0.95 on 21-60; once per window, 0.69).
       std::size_t n = 0;
       for (const auto& idx : fast) n += idx.size();
       const int m = fl.empty() ? ic.derivative_half_window : m_long;
@@ -1147,6 +1148,10 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   out.info.method = "no-reference";
   rep.identification = idrep;
   auto& r = rep.identification;
+  // What the report may give as known: not the coil field's standard error (see
+  // above), nor the delay's when the data sheet gave it.
+  r.coil_field_std_v_per_mps2 = std::numeric_limits<double>::quiet_NaN();
+  if (accel_given) r.accel_delay_std_s = std::numeric_limits<double>::quiet_NaN();
   r.hall_delay_s = hall_delay;
   r.accel_delay_s = out.model.accel_delay_s;
   // Position 0 at home, a feature of the track (see the header): the table so far
