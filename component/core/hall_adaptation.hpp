@@ -245,6 +245,30 @@ class HallAdaptation {
   /// Each sensor's gain and offset may have moved by what a change of temperature
   /// from `from_k` to `to_k` (rises over the calibration) allows.
   void widen_for_rise(double from_k, double to_k);
+  /// Without a thermal calibration: what a sensor's gain or offset has been learnt to
+  /// be at each step of the rise says what its own temperature coefficient is (a
+  /// regression of the parameter on the rise, a + c r), and each step moves it by c.
+  struct Coefficient {
+    Coefficient() = default;
+    Coefficient(double p0, double s2) : paa(p0), pcc(s2), pu(p0) {}
+    double a = 0.0, c = 0.0;              ///< at the calibration; per kelvin
+    double paa = 0.0, pac = 0.0, pcc = 0.0;
+    double u = 0.0, pu = 0.0;             ///< the unlearnt track: mean and variance
+    /// At a step of the rise from r by d_k, the learnt value x known to p: updates
+    /// (a, c) with what the fixes said since the last step and returns c (pcc is what
+    /// is left of it); the track restarts from x moved by c d_k (variance capped at
+    /// cap). Without `predict` the step is not followed: returns 0, and the track
+    /// widens by the whole spread s2.
+    double step(double x, double p, double r, double d_k, double cap, double s2, bool predict);
+  };
+  std::array<Coefficient, kMaxHalls> gain_coefficient_{}, offset_coefficient_{};
+  /// The least share of a sensor's prior at a rise the learning must have explained
+  /// before what it learnt is taken for the sensor's coefficient.
+  static constexpr double kLearntCoefficientShare = 0.5;
+  /// Steps of the rise closer together than this are not the motor's temperature [s].
+  static constexpr double kLearntCoefficientStepS = 0.5;
+  std::uint64_t clock_ = 0, last_step_clock_ = 0;  ///< readings of the rise taken [samples]
+  double ts_s_ = 0.0;
   // The rise the fixes' common gain shows (observe_fix_gain): its weighted average
   // over about kInferAverageS, first taken in after kInferFirstS.
   static constexpr double kInferAverageS = 0.05;
