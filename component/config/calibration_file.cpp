@@ -203,6 +203,8 @@ bool read_calibration(Map root, const core::MotorConfig& expected, core::Calibra
     model("accel_delay_s", cal.model.accel_delay_s, 0.0, 0.01, "s");
     // Optional: files written before it was measured have none (taken as exact).
     model("accel_delay_std_s", cal.model.accel_delay_std_s, 0.0, 0.01, "s");
+    // Optional: written by calibrations without a ruler.
+    model("hall_fix_excess_std_m", cal.model.hall_fix_excess_std_m, 0.0, 1e-3, "m");
     model("accel_bias_mps2", cal.model.accel_bias_mps2, -100.0, 100.0, "m/s^2");
     model("accel_scale", cal.model.accel_scale, 0.5, 2.0, "");
     model("frame_vibration_hz", cal.model.frame_vibration_hz, 0.0, 10000.0, "Hz");
@@ -434,6 +436,12 @@ std::string format_calibration(const core::Calibration& cal) {
       std::snprintf(buf, sizeof buf,
                     "  accel_delay_std_s: %.9f     # how well the calibration knows that delay, one sigma\n",
                     m.accel_delay_std_s);
+      out += buf;
+    }
+    if (m.hall_fix_excess_std_m > 0.0) {
+      std::snprintf(buf, sizeof buf,
+                    "  hall_fix_excess_std_m: %.9f # what the table leaves in a fix beyond the sensors' noise\n",
+                    m.hall_fix_excess_std_m);
       out += buf;
     }
     if (std::isfinite(m.temperature_c)) {

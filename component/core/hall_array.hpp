@@ -64,6 +64,8 @@ class HallAdaptation;
 class HallArray {
  public:
   HallArray(const MotorConfig& motor, HallTable table);
+  /// Adds a noise every fix carries beyond the sensors' own (SensorModel::hall_fix_excess_std_m) [m].
+  void add_fix_noise(double std_m) { floor_m2_ += std_m * std_m; }
 
   /// Refines a position near `guess_m` (normally the filter's prediction).
   /// Converges when the guess is within about pitch/8 of the truth. No allocation.

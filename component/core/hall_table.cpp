@@ -55,6 +55,7 @@ std::string calibration_checksum(const HallTable& table, const SensorModel& mode
   if (std::isfinite(model.temperature_c)) mix_rounded(model.temperature_c, 1e-3);
   if (model.track_scale_std > 0.0) mix_rounded(model.track_scale_std, 1e-10);
   if (model.accel_delay_std_s > 0.0) mix_rounded(model.accel_delay_std_s, 1e-9);
+  if (model.hall_fix_excess_std_m > 0.0) mix_rounded(model.hall_fix_excess_std_m, 1e-9);
   if (model.coil_field_std_v_per_mps2 > 0.0) mix_rounded(model.coil_field_std_v_per_mps2, 1e-9);
   if (model.table_noise_v > 0.0) mix_rounded(model.table_noise_v, 1e-9);
   if (model.trusted_span_known()) {

@@ -63,6 +63,12 @@ struct SensorModel {
   /// instant: at every change of acceleration a velocity error of about the error
   /// times the change, which the published sigmas hold (FusionFilter) [s].
   double accel_delay_std_s = 0.0;
+  /// Without a ruler: how far the fixes in the calibration's fast motion stayed from
+  /// the motion the accelerometer and the slow passes made of it, beyond their own
+  /// noise: what the self-made table leaves in a fix from one place to the next
+  /// (magnets the slow sweep placed slightly wrong). The filter takes it as part of
+  /// every fix's noise; 0 with a ruler, whose calibration refuses more than 1 um [m].
+  double hall_fix_excess_std_m = 0.0;
   /// Accelerometer reading = accel_scale * a + accel_bias_mps2 (initial values;
   /// the filter keeps estimating both).
   double accel_bias_mps2 = 0.0;

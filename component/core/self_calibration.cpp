@@ -1154,6 +1154,7 @@ bool identify_without_reference(const MotorConfig& motor, const std::vector<Refe
   if (accel_given) r.accel_delay_std_s = std::numeric_limits<double>::quiet_NaN();
   r.hall_delay_s = hall_delay;
   r.accel_delay_s = out.model.accel_delay_s;
+  out.model.hall_fix_excess_std_m = std::round(std::min(r.position_residual_beyond_noise_um * 1e-6, 1e-3) * 1e9) / 1e9;
   // Position 0 at home, a feature of the track (see the header): the table so far
   // has its zero where the carriage stood when the sweep's recording started,
   // reached only through the accelerometer bridged back from the first slow pass.

@@ -638,6 +638,36 @@ TEST_P(PopulationWarmingRamp, EachSensorsOwnCoefficientIsFollowedAsTheMotorWarms
   EXPECT_EQ(r.flagged, 0u) << "no healthy sensor flagged";
 }
 
+// Without a ruler the table is made from the slow passes, and what it leaves in a fix
+// from place to place (magnets placed slightly wrong) is only known from the fast
+// motion: on motor 67 of the held-out set (magnets placed to 46 um) the fixes stayed
+// 4.0 um beyond their sensors' 0.6 um of noise there. Trusted to 0.6 um they made the
+// point-to-point velocity 0.40 mm/s RMS, and 10 K cold the filter took them for steps of
+// acceleration until it lost the track, 0.86 m off. The calibration writes that excess
+// and the filter takes it as part of every fix's noise.
+TEST(PopulationNoRulerFixNoiseHeldOut, TheTablesErrorFromPlaceToPlaceIsFixNoiseOnMotor67) {
+  const auto p = sim::draw_population_motor(67, shipped_tuning());
+  const auto cal = calibrated_without_a_ruler(p);
+  ASSERT_TRUE(cal.ok) << cal.error;
+  std::printf("[ figures  ] fix excess written %.2f um\n", cal.cal.model.hall_fix_excess_std_m * 1e6);
+  EXPECT_GT(cal.cal.model.hall_fix_excess_std_m, 2e-6);
+  const auto sc = bench::population_scenarios(p.datasheet.travel_m)[4];  // point-to-point
+  ASSERT_EQ(sc.name, "point-to-point");
+  for (const auto cond : {bench::Condition::as_calibrated, bench::Condition::step_minus_10k}) {
+    const auto r = bench::run_population_scenario(p, cal, sc, cond, 1067);
+    ASSERT_TRUE(r.ok) << r.error;
+    std::printf("[ figures  ] %-13s position rms %.3f um | velocity rms %.4f mm/s | VALID %.2f %% | largest error "
+                "while VALID %.2f um\n",
+                bench::condition_name(cond), r.err.position_m.rms() * 1e6, r.err.velocity_mps.rms() * 1e3,
+                100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    // The track's own scale (up to 25 um on this motor far from home) is in the position.
+    EXPECT_LE(r.err.position_m.rms(), 50e-6) << bench::condition_name(cond) << ": the track is kept";
+    if (cond == bench::Condition::as_calibrated)
+      EXPECT_LE(r.err.velocity_mps.rms(), 0.3e-3) << "the issue's 0.3 mm/s without a ruler";
+    EXPECT_LE(r.max_valid_error_m, bench::kValidPositionAccuracyM) << bench::condition_name(cond);
+  }
+}
+
 // The same warm motor started from rest at 5 m/s^2, where the sensors are learnt from
 // the first magnet periods at low speed. The common gain is the fixes' to learn; taken
 // as exact by the joint update of the sensors' own gains and offsets, a pattern of
