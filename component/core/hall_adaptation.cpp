@@ -144,7 +144,7 @@ void HallAdaptation::widen_for_rise(double from_k, double to_k) {
   // Widened by the data sheet's spread at every step instead, a sensor whose
   // coefficient is a 2.6-sigma draw stayed 0.3 mV behind on a 10 K per minute ramp,
   // three times what the learning allowed for (motor 72 of the population, +2sigma
-  // position coverage 75 % in the multi-sine). See learnt_coefficient().
+  // position coverage 75 % in the multi-sine). See Coefficient::step().
   const double r = from_k;  // the rise the learning has seen since the last step
   // A motor's temperature does not move by a step within kLearntCoefficientStepS: steps
   // closer together are the fixes' thermometer settling (its first readings after a
