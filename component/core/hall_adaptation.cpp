@@ -153,27 +153,25 @@ void HallAdaptation::widen_for_rise(double from_k, double to_k) {
   // VALID 5.8 um off.
   const bool predict = !thermal_ && static_cast<double>(clock_ - last_step_clock_) * ts_s_ >= kLearntCoefficientStepS;
   last_step_clock_ = clock_;
-  const double level = std::max(hi_v_ - mid_v_, mid_v_ - lo_v_);
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    double sg2 = gain_tc_std_[k] * gain_tc_std_[k], sd2 = offset_tc_std_v_[k] * offset_tc_std_v_[k];
+    const double sg2 = gain_tc_std_[k] * gain_tc_std_[k], sd2 = offset_tc_std_v_[k] * offset_tc_std_v_[k];
+    // The learning widens by what is left of the coefficient; the published looks by
+    // the spread (as if nothing had been learnt on the way out).
+    double learn_g2 = sg2, learn_d2 = sd2;
     if (!thermal_) {
       auto& cg = gain_coefficient_[k];
       auto& cd = offset_coefficient_[k];
       const double c_g = cg.step(gamma_[k], pgg(i), r, d_k, limit2, sg2, predict);
       const double c_d = cd.step(delta_[k], pdd(i), r, d_k, HUGE_VAL, sd2, predict);
       if (predict) {
-        move_sensor(i, c_g * d_k, c_d * d_k);
-        const double dv = std::abs(c_d * d_k) + std::abs(c_g * d_k) * level;
-        moved_v2_ = std::max(moved_v2_, dv * dv);
-        sg2 = cg.pcc;
-        sd2 = cd.pcc;
+        move_sensor_by_rise(i, c_g * d_k, c_d * d_k);
+        learn_g2 = cg.pcc;
+        learn_d2 = cd.pcc;
       }
     }
-    pgg(i) = std::min(pgg(i) + sg2 * d2, limit2);
-    pdd(i) += sd2 * d2;
-    sg2 = gain_tc_std_[k] * gain_tc_std_[k];
-    sd2 = offset_tc_std_v_[k] * offset_tc_std_v_[k];
+    pgg(i) = std::min(pgg(i) + learn_g2 * d2, limit2);
+    pdd(i) += learn_d2 * d2;
     look_gg_[k] = std::min(look_gg_[k] + sg2 * d2_published, limit2);
     look_dd_[k] += sd2 * d2_published;
   }
@@ -208,13 +206,18 @@ void HallAdaptation::follow_rise(double to_k, double var_k2) {
   }
   const double d = to_k - followed_k_;
   followed_k_ = to_k;
-  const double level = std::max(hi_v_ - mid_v_, mid_v_ - lo_v_);
   for (int i = 0; i < sensors_; ++i) {
     const auto k = static_cast<std::size_t>(i);
-    move_sensor(i, gain_tc_[k] * d, offset_tc_v_[k] * d);
-    const double dv = std::abs(offset_tc_v_[k] * d) + std::abs(gain_tc_[k] * d) * level;
-    moved_v2_ = std::max(moved_v2_, dv * dv);
+    move_sensor_by_rise(i, gain_tc_[k] * d, offset_tc_v_[k] * d);
   }
+}
+
+void HallAdaptation::move_sensor_by_rise(int i, double d_gain, double d_offset_v) {
+  move_sensor(i, d_gain, d_offset_v);
+  // What the move does to a reading, at most: the filter widens by it (take_moved_v2).
+  const double level = std::max(hi_v_ - mid_v_, mid_v_ - lo_v_);
+  const double dv = std::abs(d_offset_v) + std::abs(d_gain) * level;
+  moved_v2_ = std::max(moved_v2_, dv * dv);
 }
 
 void HallAdaptation::observe_fix_gain(double relative_change, double variance, double share) {

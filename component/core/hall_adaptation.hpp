@@ -309,6 +309,9 @@ class HallAdaptation {
   /// Sensor i's gain and offset moved by these, within their bounds (a move beyond
   /// them sets at_limit_).
   void move_sensor(int i, double d_gain, double d_offset_v);
+  /// The same, moved by a change of temperature (a prediction): the largest change it
+  /// makes to a reading is kept for take_moved_v2().
+  void move_sensor_by_rise(int i, double d_gain, double d_offset_v);
   /// Sensor i's own 2 x 2 block of p_ kept a covariance: variances above zero, their
   /// covariance within what they allow, mirrored.
   void keep_block(int i);
