@@ -138,7 +138,9 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   std::array<double, kMaxHalls> tab{}, slp{}, wgt{};
   Cell cell;  // the interval the iterations are on
   double x = guess_m, e = 0.0;
-  for (int iter = 0, iters = with_gain ? 8 : 6; iter < iters; ++iter) {
+  // Nothing out of saturation: no search, but the saturated sensors are still
+  // checked against the guess below (a conflict says the guess is wrong).
+  for (int iter = 0, iters = n_on > 0 ? (with_gain ? 8 : 6) : 0; iter < iters; ++iter) {
     double hxx = 0.0, hxe = 0.0, hee = info_c, gx = 0.0, ge = -e * info_c;
     if (in_use) {
       evaluate_all(x, cell, tab, slp);

@@ -105,6 +105,9 @@ class AxisPipeline {
   std::int64_t period_ns_;
   int rejected_in_row_ = 0;
   int without_fix_in_row_ = 0;
+  /// ... of which not merely unreadable (every sensor on a rail where the table has
+  /// it): after max_samples_without_fix of these the axis re-acquires.
+  int lost_in_row_ = 0;
   int acquire_failures_ = 0;   ///< acquisitions failed in a row
   double accel_var_;
   // Sensor health.
