@@ -516,8 +516,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     } else {
       ++without_fix_in_row_;
       // Every sensor in use reads a rail, and the table has each of them there at the
-      // prediction: the carriage stands or passes where no fix can be made, which
-      // says nothing against the prediction. The filter bridges such a stretch on the
+      // prediction (or no sensor has a reading in this sample): the carriage stands or
+      // passes where no fix can be made, which says nothing against the prediction. The filter bridges such a stretch on the
       // accelerometer, its sigma growing (VALID goes after max_samples_without_fix
       // all the same). A search would find no more than the prediction, and where the
       // sensors left see one phase of the pattern only (three Halls, one of them
