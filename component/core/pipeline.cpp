@@ -517,16 +517,18 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       ++without_fix_in_row_;
       // Every sensor in use reads a rail, and the table has each of them there at the
       // prediction (or no sensor has a reading in this sample): the carriage stands or
-      // passes where no fix can be made, which says nothing against the prediction. The filter bridges such a stretch on the
-      // accelerometer, its sigma growing (VALID goes after max_samples_without_fix
-      // all the same). A search would find no more than the prediction, and where the
-      // sensors left see one phase of the pattern only (three Halls, one of them
-      // flagged, the other two half a period apart) it can take the mirror image of
-      // the place within the period: motor 54 of the population benchmark, which
-      // had lost its middle sensor to a stretch of table, was taken 0.75 mm off so.
+      // passes where no fix can be made, which says nothing against the prediction.
+      // The filter bridges such a stretch on the accelerometer, its sigma growing
+      // (VALID goes after max_samples_without_fix all the same). A search would find
+      // no more than the prediction, and where the sensors left see one phase of the
+      // pattern only (three Halls, one of them flagged, the other two half a period
+      // apart) it can take the mirror image of the place within the period: motor 54
+      // of the population benchmark, which had lost its middle sensor to a stretch of
+      // table, was taken 0.75 mm off so. Bridged only while the position is known to
+      // a sixteenth of a pitch.
+      const double bridge_m = cfg_.motor.magnet_pitch_m / 16.0;
       const bool unreadable = fix.sensors_used == 0 && fix.conflict_mask == 0 && accel_ok &&
-                              kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos) <
-                                  std::pow(cfg_.motor.magnet_pitch_m / 16.0, 2);
+                              kf_.covariance()(FusionFilter::kPos, FusionFilter::kPos) < bridge_m * bridge_m;
       if (!unreadable) ++lost_in_row_;
       if (lost_in_row_ >= cfg_.max_samples_without_fix) initialised_ = false;  // re-acquire near the prediction
     }

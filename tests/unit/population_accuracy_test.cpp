@@ -638,6 +638,14 @@ TEST_P(PopulationWarmingRamp, EachSensorsOwnCoefficientIsFollowedAsTheMotorWarms
   EXPECT_EQ(r.flagged, 0u) << "no healthy sensor flagged";
 }
 
+/// One run of a held-out motor without a ruler: its errors, VALID and the largest error while VALID.
+void print_no_ruler_figures(bench::Condition cond, const bench::RunResult& r) {
+  std::printf("[ figures  ] %-13s position rms %.3f um | velocity rms %.4f mm/s | VALID %.2f %% | largest error "
+              "while VALID %.2f um\n",
+              bench::condition_name(cond), r.err.position_m.rms() * 1e6, r.err.velocity_mps.rms() * 1e3,
+              100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+}
+
 // Without a ruler the table is made from the slow passes, and what it leaves in a fix
 // from place to place (magnets placed slightly wrong) is only known from the fast
 // motion: on motor 67 of the held-out set (magnets placed to 46 um) the fixes stayed
@@ -656,10 +664,7 @@ TEST(PopulationNoRulerFixNoiseHeldOut, TheTablesErrorFromPlaceToPlaceIsFixNoiseO
   for (const auto cond : {bench::Condition::as_calibrated, bench::Condition::step_minus_10k}) {
     const auto r = bench::run_population_scenario(p, cal, sc, cond, 1067);
     ASSERT_TRUE(r.ok) << r.error;
-    std::printf("[ figures  ] %-13s position rms %.3f um | velocity rms %.4f mm/s | VALID %.2f %% | largest error "
-                "while VALID %.2f um\n",
-                bench::condition_name(cond), r.err.position_m.rms() * 1e6, r.err.velocity_mps.rms() * 1e3,
-                100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    print_no_ruler_figures(cond, r);
     // The track's own scale (up to 25 um on this motor far from home) is in the position.
     EXPECT_LE(r.err.position_m.rms(), 50e-6) << bench::condition_name(cond) << ": the track is kept";
     if (cond == bench::Condition::as_calibrated) {
@@ -690,10 +695,7 @@ TEST(PopulationNoRulerThreeHallsHeldOut, RailsWithoutAConflictAreBridgedNotSearc
        {bench::Condition::as_calibrated, bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
     const auto r = bench::run_population_scenario(p, cal, sc, cond, 1054);
     ASSERT_TRUE(r.ok) << r.error;
-    std::printf("[ figures  ] %-13s position rms %.3f um | velocity rms %.4f mm/s | VALID %.2f %% | largest error "
-                "while VALID %.2f um\n",
-                bench::condition_name(cond), r.err.position_m.rms() * 1e6, r.err.velocity_mps.rms() * 1e3,
-                100 * r.valid_fraction(), r.max_valid_error_m * 1e6);
+    print_no_ruler_figures(cond, r);
     EXPECT_LE(r.err.position_m.rms(), 10e-6) << bench::condition_name(cond) << ": the track is kept";
     EXPECT_LE(r.err.velocity_mps.rms(), 0.3e-3) << bench::condition_name(cond);
     EXPECT_LE(r.max_valid_error_m, bench::kValidPositionAccuracyM) << bench::condition_name(cond);
