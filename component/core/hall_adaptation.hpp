@@ -90,7 +90,13 @@ class HallAdaptation {
   /// `share` (0..1) is how much of a new place the fix is (update()): fixes where the
   /// carriage stands repeat their errors, and the thermometer's reading is then known
   /// no better than one fix's.
-  void observe_fix_gain(double relative_change, double variance, double share = 1.0);
+  void observe_fix_gain(double relative_change, double variance, double share = 1.0,
+                        double offset_var_per_k2 = 0.0);
+  /// The data sheet's spread of sensor i's offset temperature coefficient, squared [V^2/K^2].
+  double offset_tc_variance(int i) const {
+    const double s = offset_tc_std_v_[static_cast<std::size_t>(i)];
+    return s * s;
+  }
 
   /// Learns from one sample: `x_m` the position the Halls saw (the filter's
   /// prediction at the Halls' instant); only sensors in `mask` (not this sample's
@@ -245,6 +251,12 @@ class HallAdaptation {
   /// Each sensor's gain and offset may have moved by what a change of temperature
   /// from `from_k` to `to_k` (rises over the calibration) allows.
   void widen_for_rise(double from_k, double to_k);
+  /// Without a thermal calibration: what the published sigma holds (look_gg_,
+  /// look_dd_) widens by the data sheet's spreads times the part of the rise the
+  /// fixes' thermometer has not read (a reading of variance var_k2 against the
+  /// unread band), as far as it has not widened for it yet.
+  void widen_for_unread_share(double var_k2);
+  double unread_share_var_k2_ = 0.0;  ///< the unread rise's variance the looks hold so far [K^2]
   /// Without a thermal calibration: what a sensor's gain or offset has been learnt to
   /// be at each step of the rise says what its own temperature coefficient is (a
   /// regression of the parameter on the rise, a + c r), and each step moves it by c.
@@ -278,6 +290,7 @@ class HallAdaptation {
   static constexpr double kInferKnownShare = 0.5;
   double infer_decay_ = 0.0;
   double infer_wg_ = 0.0, infer_w_ = 0.0;
+  double infer_wo_ = 0.0;  ///< the weighted sum of what the offsets' drift adds to each reading's variance
   std::uint64_t infer_samples_ = 0, infer_first_samples_ = 0;
   bool inferred_started_ = false;
   double inferred_k_ = 0.0;           ///< the rise last applied, as large as the coefficients allow [K]

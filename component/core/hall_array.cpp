@@ -248,6 +248,16 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
     }
     fix.common_gain = e;
     fix.common_gain_variance = hxx / det;
+    if (adaptation) {
+      // The gain's sensitivity to each reading: the gain row of the inverse times w_i (jx_i, u_i).
+      double offset_var = 0.0;
+      for (int q = 0; q < n_on; ++q) {
+        const auto k = static_cast<std::size_t>(on[q]);
+        const double ge_k = (hxx * wu[k] - hxe * wjx[k]) / det;
+        offset_var += ge_k * ge_k * adaptation->offset_tc_variance(on[q]);
+      }
+      fix.common_gain_offset_var_per_k2 = offset_var;
+    }
     const double ce = hxe / det;  // the position's sensitivity to the common gain's prior
     gain_prior_share = ce * ce * info_c;
   }

@@ -31,6 +31,11 @@ struct HallFix {
   /// with, and its posterior variance (0, 0 without).
   double common_gain = 0.0;
   double common_gain_variance = 0.0;
+  /// What the sensors' offsets, drifting by their data sheet's spreads, add to
+  /// common_gain's variance per kelvin squared of rise [1/K^2]: a drift of one
+  /// sensor's offset reads as a change of the gain all share, most where few
+  /// sensors are out of saturation (0 without an adaptation).
+  double common_gain_offset_var_per_k2 = 0.0;
   /// The part of the fix's error that repeats from sample to sample while the
   /// carriage stands still: the ADC's quantisation, which the sensors' own noise
   /// dithers only partly (variance_m2 counts it as white noise) [m^2].

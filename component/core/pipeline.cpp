@@ -409,7 +409,8 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     // from the next one on: a step of the model, which the filter's position takes
     // in at once instead of through its velocity.
     moved_v2_ = std::max(moved_v2_, adapt_.take_moved_v2());
-    if (judge && fix.common_gain_variance > 0.0) adapt_.observe_fix_gain(fix.common_gain, fix.common_gain_variance, share);
+    if (judge && fix.common_gain_variance > 0.0) adapt_.observe_fix_gain(fix.common_gain, fix.common_gain_variance, share,
+                                                                        fix.common_gain_offset_var_per_k2);
     if (fix.ok && widen_filter_) {
       // The fixes the filter has taken so far carried the drift the sensors' covariance
       // now allows for, as errors that repeat along the travel, which its own variance
