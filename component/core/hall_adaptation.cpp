@@ -272,8 +272,8 @@ void HallAdaptation::observe_fix_gain(double relative_change, double variance, d
   // and a drifted offset reads as a change of the common gain: by as much as the
   // unread band allows. Where two sensors are out of saturation that is most of what
   // a fix reads (motor 80 of the population, +10 K at standstill: the thermometer read
-  // 1.5 K for 9.4 K and claimed 2.4 K). Not a weight of the reading (its value is as
-  // before), but part of how well it is known (widen_for_unread_share).
+  // 1.5 K for 9.4 K and claimed to know it to 2.4 K). Not a weight of the reading (its
+  // value is as before), but part of how well it is known (widen_for_unread_share).
   infer_wo_ = infer_decay_ * infer_wo_ + w * std::max(0.0, offset_var_per_k2) * unread_rise_var_k2_;
   if (++infer_samples_ < infer_first_samples_) return;
   const double read_var_k2 =
