@@ -43,6 +43,22 @@ HallArray::HallArray(const MotorConfig& motor, HallTable table)
   }
 }
 
+void HallArray::add_table_error(double std_m) {
+  if (!(std_m > 0.0) || !table_.valid() || table_.points < 3) return;
+  // Mean over the nodes of sum_i slope_i^2, the sensors between the rails only.
+  const auto points = static_cast<std::size_t>(table_.points);
+  double info = 0.0;
+  for (std::size_t k = 1; k + 1 < points; ++k)
+    for (int s = 0; s < sensors_; ++s) {
+      const double* v = table_.v.data() + static_cast<std::size_t>(s) * points;
+      if (!(v[k] > lo_v_ && v[k] < hi_v_)) continue;
+      const double slope = (v[k + 1] - v[k - 1]) / (2.0 * table_.step_m);
+      info += slope * slope;
+    }
+  info /= static_cast<double>(points - 2);
+  table_error_v2_ = std_m * std_m * info;
+}
+
 void HallArray::evaluate_all(double x_m, Cell& cell, std::array<double, kMaxHalls>& value_v,
                              std::array<double, kMaxHalls>& slope_v_per_m) const {
   const int points = table_.points;
@@ -184,6 +200,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   // Residuals at the solution. Saturated sensors must agree too: a sensor reading
   // a rail whose table value is far from that rail means we are in the wrong place.
   double chi2 = with_gain ? e * e * info_c : 0.0;
+  double chi2_table = chi2;
   int used = 0;
   double hxx = 0.0, hxe = 0.0, hee = info_c;
   double qxx = 0.0, qxe = 0.0, qee = 0.0;  // the same sums with w^2: the quantisation's share
@@ -204,6 +221,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
       const double w = wgt[static_cast<std::size_t>(i)];
       const double jx = (1.0 + e) * slope;
       chi2 += r * r * w;
+      chi2_table += r * r * w / (1.0 + w * table_error_v2_);
       hxx += w * jx * jx;
       hxe += w * jx * u;
       hee += w * u * u;
@@ -222,6 +240,7 @@ HallFix HallArray::solve(const RawSample& sample, double guess_m, double common_
   }
   fix.position_m = x;
   fix.chi2 = chi2;
+  fix.chi2_table = chi2_table;
   fix.sensors_used = used;
   if (used == 0 || hxx <= 0.0 || fix.conflict_mask != 0) return fix;
   // The position moves by sum_i g_i dy_i for reading errors dy_i, g the position

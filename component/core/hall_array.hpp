@@ -21,6 +21,9 @@ struct HallFix {
   double variance_m2 = 0.0;     ///< from the slopes and noise of the sensors used
   int sensors_used = 0;         ///< sensors out of saturation that carried the fix
   double chi2 = 0.0;            ///< sum of squared normalised residuals of the sensors used
+  /// The same with the table's own error in each reading (HallArray::add_table_error):
+  /// what a healthy sensor may disagree by; equal to chi2 without that error.
+  double chi2_table = 0.0;
   std::uint32_t missing_mask = 0;  ///< bit i: sensor i had no sample
   bool out_of_table = false;    ///< the solution ran into an end of the table
   /// Saturated sensors whose table value at the solution is far from the rail they
@@ -71,6 +74,16 @@ class HallArray {
   HallArray(const MotorConfig& motor, HallTable table);
   /// Adds a noise every fix carries beyond the sensors' own (SensorModel::hall_fix_excess_std_m) [m].
   void add_fix_noise(double std_m) { floor_m2_ += std_m * std_m; }
+  /// The same excess (std_m [m]) as each sensor's reading carries it, for judging the
+  /// sensors only (HallFix::chi2_table; never the fix, its weights or its chi2): a table
+  /// whose sensors' curves are a few mV apart at some places makes a healthy sensor look
+  /// like the odd one out there, and leaving that sensor out of the fix there is still
+  /// the better fix. Independent per sensor, a reading error of variance s2 leaves
+  /// s2 / sum_i slope_i^2 in the fix, so s2 = std_m^2 times that sum, averaged over the
+  /// table's nodes (the sensors between the rails at each).
+  void add_table_error(double std_m);
+  /// That reading variance [V^2] (0: none).
+  double table_error_v2() const { return table_error_v2_; }
 
   /// Refines a position near `guess_m` (normally the filter's prediction).
   /// Converges when the guess is within about pitch/8 of the truth. No allocation.
@@ -119,6 +132,7 @@ class HallArray {
   double hi_v_;        ///< readings at or above are saturated high
   double weight_;      ///< 1 / per-sensor voltage variance [1/V^2]
   double floor_m2_;    ///< variance floor added to every fix [m^2]
+  double table_error_v2_ = 0.0;  ///< add_table_error: per reading, in the chi-square only [V^2]
   /// Variance of a reading's quantisation error that the noise does not average
   /// away (the reading's mean, as a function of the input, still steps) [V^2].
   double quantisation_v2_;

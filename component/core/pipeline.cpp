@@ -52,6 +52,11 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   // point-to-point velocity 0.40 mm/s RMS, and 10 K cold the filter took those fixes
   // for steps of acceleration until it lost the track.
   hall_.add_fix_noise(config.sensors.hall_fix_excess_std_m);
+  // ... and what it leaves in each sensor's reading, which judging the sensors allows
+  // for: without it, motor 67's healthy sensors were the odd one out where its table's
+  // curves are 2-4 mV apart (at 0.112-0.116 m), and up to five of its eight were
+  // flagged in turn.
+  hall_.add_table_error(config.sensors.hall_fix_excess_std_m);
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
   const int n = std::min(config.motor.hall.count, kMaxHalls);
@@ -77,6 +82,9 @@ HallFix AxisPipeline::solve_robust(const RawSample& sample, double guess_m, doub
   ambiguous = false;
   const double limit = cfg_.motor.filter.sensor_chi2_limit;
   HallFix fix = hall_.solve(sample, guess_m, common_mode_v, use_mask, &adapt_);
+  // Whether the table's own error explains the disagreement (always so when there is
+  // none): the odd sensor is still left out of the fix, but not blamed for it.
+  table_explains_ = fix.ok && fix.chi2_table <= limit;
   if (fix.ok && fix.chi2 <= limit) return fix;
   // The sensors disagree (or one reads a rail where the others place it in the
   // middle): find the one sensor whose removal leaves a consistent fix, and among
@@ -157,6 +165,7 @@ void AxisPipeline::readmission_step(const RawSample& raw, double x_m, double com
     if (!(raw.hall_valid_mask & bit) || !(y > lo && y < hi)) continue;  // a rail reading says nothing
     double std_v = 0.0;
     const double r = adapt_.residual(raw, hall_.table(), i, x_m, common_mode_v, std_v);
+    std_v = std::sqrt(std_v * std_v + hall_.table_error_v2());
     if (std::abs(r) > f.sensor_readmit_sigma * std_v || adapt_.beyond_limits(i)) {
       readmit_streak_[i] = 0;
       continue;
@@ -359,7 +368,7 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
     // warmer or colder than at calibration makes its most drifted sensor look like
     // the odd one out at first. (The fix itself leaves an outlier out all along.)
     if (judge && !ambiguous && settled_samples_ >= blame_wait_samples_)
-      update_hall_health(use & sample.hall_valid_mask, outlier);
+      update_hall_health(use & sample.hall_valid_mask, table_explains_ ? 0u : outlier);
     // Learn gains and offsets against the prediction (made before this fix, so the
     // fix's own noise is not fed back) once the filter has settled after a start
     // (its start-up transient is not drift), and only from fixes the prediction

@@ -133,6 +133,7 @@ class AxisPipeline {
   int settle_moving_samples_ = 1;  ///< ... or this many, once each sample is at a new place
   bool drift_unlearnt_ = false;  ///< the last fix carried drift the adaptation had not learnt
   double disagreement_seen_m2_ = 0.0;  ///< this sample's unexplained disagreement (solve_robust)
+  bool table_explains_ = false;  ///< solve_robust: the sensors agree within the table's own error
   double disagreement_var_m2_ = 0.0;   ///< its recent average, added to the published sigma
   /// The last fix's quantisation error that the filter cannot average away at
   /// this speed (HallFix::quantisation_m2), added to the published sigma [m^2].

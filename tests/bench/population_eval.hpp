@@ -223,6 +223,9 @@ struct FaultProbe {
   bool inject = false;
   int sensor = 0;
   double at_s = 0.0;  ///< a dead sensor (stuck at its zero-field output) from then on
+  /// Or another fault of the sensor from then on (with its magnitude, as in sim::FaultConfig).
+  sim::FaultConfig::Kind kind = sim::FaultConfig::Kind::hall_stuck_mid;
+  double magnitude = 0.0;
 };
 
 struct RunResult {
@@ -297,7 +300,8 @@ inline RunResult run_population_scenario(const sim::PopulationMotor& p, const Ca
   }
   if (probe.inject) {
     cfg.fault_count = 1;
-    cfg.faults[0].kind = sim::FaultConfig::Kind::hall_stuck_mid;
+    cfg.faults[0].kind = probe.kind;
+    cfg.faults[0].magnitude = probe.magnitude;
     cfg.faults[0].sensor = probe.sensor;
     cfg.faults[0].start_s = probe.at_s;
   }
