@@ -195,6 +195,11 @@ class HallAdaptation {
   double common_gain_variance() const { return enabled_ ? p_common_ : 0.0; }
   /// The zero-field output the gains act about [V].
   double mid_v() const { return mid_v_; }
+  /// Adds to the table's own error in one sample's residual (hall_adaptation_model_std_v):
+  /// what a table made without a ruler is further off by (HallArray::table_error_v2) [V^2].
+  void add_model_variance(double v2) {
+    if (v2 > 0.0) model_var_v2_ += v2;
+  }
   double offset_v(int i) const { return delta_[static_cast<std::size_t>(i)]; }
   /// The sensor's gain or offset ran into its bound: more change than slow drift explains.
   bool beyond_limits(int i) const { return at_limit_[static_cast<std::size_t>(i)]; }

@@ -57,6 +57,7 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   // curves are 2-4 mV apart (at 0.112-0.116 m), and up to five of its eight were
   // flagged in turn.
   hall_.add_table_error(config.sensors.hall_fix_excess_std_m);
+  adapt_.add_model_variance(hall_.table_error_v2());
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
   const int n = std::min(config.motor.hall.count, kMaxHalls);
