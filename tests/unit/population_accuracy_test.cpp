@@ -667,6 +667,11 @@ TEST(PopulationNoRulerFixNoiseHeldOut, TheTablesErrorFromPlaceToPlaceIsFixNoiseO
     print_no_ruler_figures(cond, r);
     // The track's own scale (up to 25 um on this motor far from home) is in the position.
     EXPECT_LE(r.err.position_m.rms(), 50e-6) << bench::condition_name(cond) << ": the track is kept";
+    // Where a sensor comes out of saturation at 1.4 m/s its reading is 5-9 mV off this
+    // table: learnt as drift (a gain of -1.35 %, offsets of 8-14 mV) it made sensor 6 the
+    // odd one out everywhere else, until the adaptation learnt against the table's
+    // measured error too (HallAdaptation::add_model_variance).
+    EXPECT_EQ(r.flagged, 0u) << bench::condition_name(cond) << ": no healthy sensor flagged";
     if (cond == bench::Condition::as_calibrated) {
       EXPECT_LE(r.err.velocity_mps.rms(), 0.3e-3) << "the issue's 0.3 mm/s without a ruler";
     }
