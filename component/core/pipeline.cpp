@@ -57,6 +57,8 @@ AxisPipeline::AxisPipeline(const PipelineConfig& config, HallTable table)
   // curves are 2-4 mV apart (at 0.112-0.116 m), and up to five of its eight were
   // flagged in turn.
   hall_.add_table_error(config.sensors.hall_fix_excess_std_m);
+  // The adaptation learns against the same table: where a sensor comes out of
+  // saturation motor 67's reads 5-9 mV off it, which was learnt as a gain of -1.35 %.
   adapt_.add_model_variance(hall_.table_error_v2());
   const double an = config.motor.accelerometer.noise_mps2;
   accel_var_ = an * an;
