@@ -733,6 +733,30 @@ TEST(PopulationNoRulerFixNoiseHeldOut, HealthySensorsAreNotBlamedForTheTablesErr
     EXPECT_GE(r.detect_s, 0.0) << "dead sensor " << sensor << " was never flagged";
     EXPECT_LT(r.detect_s, 0.05) << "sensor " << sensor;
   }
+  // What the allowance costs: a sensor that is only noisy must be noisier than it
+  // (4.5 mV here) to be flagged. 5 and 10 mV of extra noise are printed (flagged in
+  // 3-4 ms before the allowance, not at all with it); from 20 mV on it is flagged
+  // within the 50 ms a fault must be.
+  for (const double noise_mv : {5.0, 10.0, 20.0, 50.0}) {
+    bench::FaultProbe probe;
+    probe.inject = true;
+    probe.sensor = 3;
+    probe.at_s = 5.0;
+    probe.kind = sim::FaultConfig::Kind::hall_noisy;
+    probe.magnitude = noise_mv * 1e-3;
+    const auto r = bench::run_population_scenario(p, cal, sc, bench::Condition::as_calibrated, 3000, probe);
+    ASSERT_TRUE(r.ok) << r.error;
+    if (r.detect_s >= 0.0)
+      std::printf("[ figures  ] sensor 3 with %.0f mV of extra noise: flagged after %.1f ms\n", noise_mv,
+                  r.detect_s * 1e3);
+    else
+      std::printf("[ figures  ] sensor 3 with %.0f mV of extra noise: never flagged\n", noise_mv);
+    EXPECT_FALSE(r.probe_flagged_before) << noise_mv << " mV";
+    if (noise_mv >= 20.0) {
+      EXPECT_GE(r.detect_s, 0.0) << noise_mv << " mV of noise was never flagged";
+      EXPECT_LT(r.detect_s, 0.05) << noise_mv << " mV";
+    }
+  }
 }
 
 // Motor 54 of the held-out set has three Halls 7 mm apart on a 28.5 mm period: the
