@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <ctime>
 #include <deque>
 #include <fstream>
 #include <iterator>
@@ -924,6 +925,8 @@ class StateReader::Listener : public fdds::DataReaderListener {
     }
     take_each<ve::dds::EncoderState>(*reader, [this](const ve::dds::EncoderState& s, const fdds::SampleInfo& info) {
       const auto now = std::chrono::steady_clock::now();
+      std::int64_t gap_ns = 0;
+      std::uint64_t gap_periods = 0;
       {
         std::lock_guard<std::mutex> lock(mutex);
         auto& a = axis(s.axis_id());
@@ -941,6 +944,8 @@ class StateReader::Listener : public fdds::DataReaderListener {
           const std::uint64_t added = instance.periods.on_report(instance.last_sample_ns, now_ns, deadline_ns);
           missed_total.fetch_add(added);
           a.deadline_missed += added;
+          gap_ns = now_ns - instance.last_sample_ns;  // logged whoever counted its periods
+          gap_periods = static_cast<std::uint64_t>(gap_ns / deadline_ns);
         }
         instance.last_sample_ns = now_ns;
         auto& times = arrivals[s.axis_id()];
@@ -948,8 +953,23 @@ class StateReader::Listener : public fdds::DataReaderListener {
         while (!times.empty() && now - times.front() > std::chrono::seconds(1)) times.pop_front();
       }
       total.fetch_add(1);
+      if (gap_ns > 0) log_gap(s.axis_id(), gap_ns, gap_periods);
       if (callback) callback(s);
     });
+  }
+
+  // A gap of a deadline period or more, once it is over: when it began (local time of
+  // day, to the microsecond, to line it up with other logs of the host), how long it
+  // was and the periods it cost. Rare by nature, so logged each time.
+  static void log_gap(std::uint32_t axis_id, std::int64_t gap_ns, std::uint64_t periods) {
+    const auto began = std::chrono::system_clock::now() - std::chrono::nanoseconds(gap_ns);
+    const auto us = std::chrono::duration_cast<std::chrono::microseconds>(began.time_since_epoch()).count();
+    const std::time_t secs = static_cast<std::time_t>(us / 1000000);
+    std::tm tm{};
+    localtime_r(&secs, &tm);
+    spdlog::warn("monitor: axis id {}: no sample for {:.1f} ms from {:02d}:{:02d}:{:02d}.{:06d}: {} requested "
+                 "deadline period(s) missed",
+                 axis_id, gap_ns * 1e-6, tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<int>(us % 1000000), periods);
   }
 
   void on_requested_deadline_missed(fdds::DataReader*, const fdds::RequestedDeadlineMissedStatus& st) override {

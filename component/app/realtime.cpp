@@ -186,6 +186,11 @@ Realtime::Realtime(const config::RealtimeConfig& config, const std::vector<std::
     } else {
       applied.push_back("Fast DDS's threads SCHED_FIFO " + std::to_string(dds_priority));
     }
+  } else if (dds_priority <= 0 && priority_usable_ && config_.sample_thread_priority > 0) {
+    // Said, not warned: a choice the machine file may make. What it costs is measured in
+    // docs/scale.md (the plant test's deadline misses with no stall of the host).
+    applied.push_back("Fast DDS's threads at normal priority (a sample thread's write waits for locks they hold; "
+                      "realtime.dds_thread_priority raises them)");
   }
   if (!ok_) return;
   std::string summary;

@@ -11,8 +11,9 @@
 #   (SERVER, not BACKUP (-b): Debian's Fast DDS 2.9.1 aborts when a BACKUP server restores
 #   the database it wrote before it was killed, docs/scale.md)
 #   e1..e5  .11-.15  `virtual-encoder run`, two simulated axes at 1 kHz each (ids 1-10), as clients;
-#           the sample threads at SCHED_FIFO 50 (the machine file's realtime section), as a
-#           plant runs them, so that other work on this shared host does not stall them
+#           the sample threads at SCHED_FIFO 50 and Fast DDS's threads at 45 (the machine
+#           file's realtime section), as a plant runs them, so that other work on this
+#           shared host does not stall them, nor hold a lock a sample thread waits for
 #   mon .20 `virtual-encoder monitor`, as a super-client, at SCHED_FIFO 40 (chrt) as a consumer
 #           of a plant's stream runs (its readers take up to 12,000 samples a second here)
 #   e6  .16 a sixth encoder (ids 11, 12), started after the servers were killed and one restarted
@@ -29,14 +30,12 @@
 #     whether it was met);
 #   - over 60 s (after a 5 s settling window): zero sequence gaps, zero requested deadline
 #     periods missed (monitor) and zero offered (the encoders' diagnostics) on every axis,
-#     every axis near 1000 Hz. A probe (ve_pace_floor at SCHED_FIFO 50, the sample threads'
-#     priority, waking at 1 kHz and doing nothing else) tells the host's stalls from the
-#     product's: offered misses are judged only when the probe was never 4 ms late, requested
-#     ones (10 ms) only when neither it nor a probe just above the monitor's priority (41)
-#     was ever 9 ms late; both also need a probe at normal priority (Fast DDS's own
-#     threads, whose locks a write shares) never 4 / 9 ms late. One probe of each pinned
-#     to each CPU. Otherwise they are printed with the probes' figures (this host is
-#     shared);
+#     every axis near 1000 Hz. Probes (ve_pace_floor, waking at 1 kHz and doing nothing
+#     else; at SCHED_FIFO 50, the sample threads' priority, at 41, just above the monitor's,
+#     and at normal priority, Fast DDS's own threads'; one of each pinned to each CPU) log
+#     every time the host held them 4 ms or more. Each miss is placed in time by the logs
+#     (the monitor's gaps, the encoders' episodes) and is the host's when a probe was held
+#     during it: printed, not judged. Any other miss fails (this host is shared);
 #   - both servers killed (SIGKILL): 30 s later (longer than a participant's 20 s lease, which
 #     no server renews meanwhile) every axis still arrives at the monitor;
 #   VE_PLANT_WINDOW_S (60) and VE_PLANT_ENCODERS (5, at most 5) change the window and the
@@ -56,6 +55,7 @@ SRC=${3:?}
 PROBE=${4:?}
 MATCH_BOUND_S=${VE_PLANT_MATCH_BOUND_S:-10}
 NEW_BOUND_S=${VE_PLANT_NEW_BOUND_S:-30}
+SERVER_RESTART_BOUND_S=30   # the restarted server's own start (normal priority, as its unit runs it)
 WINDOW_S=${VE_PLANT_WINDOW_S:-60}
 NENC=${VE_PLANT_ENCODERS:-5}   # 1..5 encoders (the discovery traffic's dependence on their number)
 NAX=$((2 * NENC))
@@ -159,6 +159,7 @@ dds:
   deadline_ms: 5
 realtime:
   sample_thread_priority: 50
+  dds_thread_priority: 45
   required: false
 axes:
   - name: e${k}a
@@ -298,7 +299,7 @@ for id in 0 1; do
 done
 wait_for 10 grep -q "Server is running" "$WORK/ds0.out" || fail "server 0 did not start: $(cat "$WORK/ds0.out" "$WORK/ds0.err")"
 wait_for 10 grep -q "Server is running" "$WORK/ds1.out" || fail "server 1 did not start: $(cat "$WORK/ds1.out" "$WORK/ds1.err")"
-total_s=$((5 + WINDOW_S + 30 + NEW_BOUND_S + 15))
+total_s=$((5 + WINDOW_S + 30 + SERVER_RESTART_BOUND_S + NEW_BOUND_S + 15))
 start mon2 mon "FASTRTPS_DEFAULT_PROFILES_FILE=$WORK/super-client.xml" -- \
   chrt -f 40 "$VE" monitor --domain "$D" --duration "$total_s"
 sleep 1
@@ -334,11 +335,13 @@ for cpu in $(seq 0 $(($(nproc) - 1))); do
     PROBE_PIDS+=($!)
   done
 done
+w0_tod=$(now_of_day)
 table_a=$(last_table "$WORK/mon2.out")
 sleep_until_after "$tc2" 21
 kill -USR1 "$PID_traffic2"   # the next 10 s
 sleep_until_after "$tc2" $((11 + WINDOW_S))
 table_b=$(last_table "$WORK/mon2.out")
+w1_tod=$(now_of_day)
 kill -USR1 "$PID_traffic2"   # end of the window
 for pid in "${PROBE_PIDS[@]}"; do stop_group "$pid" INT; done
 # probe_figures PRIO: sets p_stalls (summed) and p_late_us (the latest wake-up) over
@@ -359,21 +362,76 @@ probe_figures() {
 probe_figures 50; stalls=$p_stalls; max_late_us=$p_late_us
 probe_figures 41; stalls41=$p_stalls; max_late41_us=$p_late_us
 probe_figures 0; stalls0=$p_stalls; max_late0_us=$p_late_us
-# Offered misses (5 ms) are the encoders' sample threads' (priority 50), whose writes
-# wait for any Fast DDS thread of the encoder holding the writer's lock (normal
-# priority). A requested miss is a 10 ms gap in arrivals at the monitor: the encoders'
-# threads and the monitor's (40) both make it. A stall at any of them decides.
-judge_offered=1; judge_requested=1
-[ "$stalls" -gt 0 ] && judge_offered=0
-[ "$stalls0" -gt 0 ] && judge_offered=0
-[ "$max_late_us" -ge 9000 ] && judge_requested=0
-[ "$max_late41_us" -ge 9000 ] && judge_requested=0
-[ "$max_late0_us" -ge 9000 ] && judge_requested=0
+# Each miss is judged on its own, against the probes' stalls at that moment.
+# - A requested miss is a gap of 10 ms or more in arrivals at the monitor; the monitor logs
+#   each one when it is over (when it began, to the microsecond, and how long it was). The
+#   encoders' threads (50, and Fast DDS's at 0) and the monitor's (40) all make it.
+# - An offered miss (5 ms) is an encoder's sample thread not publishing in time; the
+#   encoder logs when an episode of them begins (to the millisecond; Fast DDS reports it
+#   4-5 ms after the last write) and how long it lasted.
+# A miss is the host's when a probe (any priority, any CPU) was held 4 ms or more during
+# it: it is printed with that stall, not judged. Every other miss fails the test. All
+# times are local times of day (seconds since midnight; a window across midnight is
+# unwrapped).
+tod_s() { awk -F: '{ printf "%.6f\n", $1 * 3600 + $2 * 60 + $3; exit }' <<<"$1"; }
+W0=$(tod_s "$w0_tod"); W1=$(tod_s "$w1_tod")
+cat "$WORK"/probe-*-cpu*.out | awk '/^STALL / { split($2, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]
+                                               printf "%.6f %.6f\n", s, s + $3 / 1e6 }' >"$WORK/stalls.txt"
+# Requested: "axis-id start end periods" from the monitor's log.
+awk '/monitor: axis id [0-9]+: no sample for / {
+       match($0, /axis id [0-9]+/); id = substr($0, RSTART + 8, RLENGTH - 8)
+       match($0, /no sample for [0-9.]+ ms/); len = substr($0, RSTART + 14, RLENGTH - 17) / 1000
+       match($0, /from [0-9:.]+/); split(substr($0, RSTART + 5, RLENGTH - 5), t, ":")
+       match($0, /: [0-9]+ requested/); n = substr($0, RSTART + 2, RLENGTH - 12)
+       s = t[1] * 3600 + t[2] * 60 + t[3]; printf "%s %.6f %.6f %d\n", id, s, s + len, n }' \
+  "$WORK/mon2.err" >"$WORK/gaps-requested.txt"
+# Offered: "axis-id start end" per episode, from each encoder's log.
+for f in "$WORK"/d-e*.err; do
+  awk '/offered deadline of [0-9]+ ms missed/ {
+         split($1, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]
+         match($0, /\(id [0-9]+\)/); id = substr($0, RSTART + 4, RLENGTH - 5)
+         match($0, /of [0-9]+ ms/); dl = substr($0, RSTART + 3, RLENGTH - 6) / 1000
+         at[id] = s; open[id] = 1 }
+       /deadline episode [0-9]+ over: / && /\(id [0-9]+\)/ {
+         match($0, /\(id [0-9]+\)/); id = substr($0, RSTART + 4, RLENGTH - 5)
+         match($0, /in [0-9.]+ s/); d = substr($0, RSTART + 3, RLENGTH - 5)
+         match($0, /over: [0-9]+ miss/); n = substr($0, RSTART + 6, RLENGTH - 11)
+         # From the last write, N periods or a little more before the first report (all N
+         # may be counted at once, when the silence ends), to the next write (at most a
+         # period after the last report).
+         if (open[id]) printf "%s %.6f %.6f\n", id, at[id] - (n + 1) * dl, at[id] + d + dl
+         open[id] = 0 }
+       END { for (id in open) if (open[id]) printf "%s %.6f %.6f\n", id, at[id] - dl, at[id] + 1e6 }' "$f"
+done >"$WORK/gaps-offered.txt"
+# judge_misses KIND FILE: one line per miss whose interval meets the window (the tables'
+# window begins up to 2 s before w0: they are the last complete ones), "axis-id start-tod
+# length-ms host|product stall", and the count of the product's on the last line.
+judge_misses() {
+  awk -v w0="$W0" -v w1="$W1" -v kind="$1" '
+    function unwrap(x) { return (x < w0 - 43200) ? x + 86400 : x }
+    function tod(x,   h, m) { x = x % 86400; h = int(x / 3600); m = int((x - h * 3600) / 60)
+                              return sprintf("%02d:%02d:%09.6f", h, m, x - h * 3600 - m * 60) }
+    FILENAME == ARGV[1] { ns++; ss[ns] = unwrap($1); se[ns] = unwrap($2); next }
+    { id = $1; a = unwrap($2); b = unwrap($3)
+      if (b < w0 - 3 || a > w1 + 1) next
+      why = ""
+      for (i = 1; i <= ns; i++)
+        if (ss[i] <= b + 0.001 && se[i] >= a - 0.001) {
+          why = sprintf("a probe held %.1f ms from %s", (se[i] - ss[i]) * 1000, tod(ss[i])); break }
+      if (why == "") product++
+      printf "    %s miss, axis %s: from %s for %.1f ms: %s\n", kind, id, tod(a), (b - a) * 1000,
+             (why == "" ? "no probe held 4 ms then: the product'"'"'s" : "the host'"'"'s (" why ")")
+    }
+    END { printf "%d\n", product }' "$WORK/stalls.txt" "$2"
+}
 echo "[ probe    ] SCHED_FIFO 50 at 1 kHz on each of $(nproc) CPUs over the window: $stalls wake-up(s) 4 ms or more late, the latest $max_late_us us; load average $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "[ probe    ] SCHED_FIFO 41 (just above the monitor's 40), the same: $stalls41 wake-up(s) 4 ms or more late, the latest $max_late41_us us"
 echo "[ probe    ] normal priority (SCHED_OTHER, nice 0), the same: $stalls0 wake-up(s) 4 ms or more late, the latest $max_late0_us us"
-[ $judge_offered = 0 ] && echo "[ note     ] the host stalled an encoder's sample or DDS thread for 4 ms or more: offered deadline misses are printed, not judged"
-[ $judge_requested = 0 ] && echo "[ note     ] the host stalled an encoder's or the monitor's thread for 9 ms or more: requested deadline misses are printed, not judged"
+req_out=$(judge_misses requested "$WORK/gaps-requested.txt"); req_product=$(tail -1 <<<"$req_out")
+off_out=$(judge_misses offered "$WORK/gaps-offered.txt"); off_product=$(tail -1 <<<"$off_out")
+sed '$d' <<<"$req_out"; sed '$d' <<<"$off_out"
+[ "$req_product" -eq 0 ] || fail "$req_product requested deadline miss(es) in the window with no stall of the host at the time (above)"
+[ "$off_product" -eq 0 ] || fail "$off_product offered deadline miss episode(s) in the window with no stall of the host at the time (above)"
 echo "[ window   ] ${WINDOW_S} s; per axis: rate Hz, sequence gaps, requested / offered deadline periods missed (in the window)"
 for id in $(seq 1 "$NAX"); do
   rate=$(table_field "$table_b" "$id" rate)
@@ -387,9 +445,12 @@ for id in $(seq 1 "$NAX"); do
   off="-"; [ "$offb" != "-" ] && [ "$offa" != "-" ] && off=$((offb - offa))
   echo "    axis $id: rate $rate Hz, gaps $gaps, deadline periods missed $req / $off"
   [ "$gaps" -eq 0 ] || fail "axis $id: $gaps sequence gaps in the window"
-  [ $judge_requested = 1 ] && [ "$req" -ne 0 ] && fail "axis $id: $req requested deadline periods missed in the window"
+  # Each counted miss must be one the logs place in time (judged above).
+  [ "$req" -ne 0 ] && ! awk -v id="$id" '$1 == id { f = 1 } END { exit !f }' "$WORK/gaps-requested.txt" &&
+    fail "axis $id: $req requested deadline periods missed in the window, but no gap in the monitor's log"
   [ "$off" = "-" ] && fail "axis $id: no diagnostics (offered deadline misses unknown)"
-  [ $judge_offered = 1 ] && [ "$off" != "-" ] && [ "$off" -ne 0 ] && fail "axis $id: $off offered deadline periods missed in the window"
+  [ "$off" != "-" ] && [ "$off" -ne 0 ] && ! awk -v id="$id" '$1 == id { f = 1 } END { exit !f }' "$WORK/gaps-offered.txt" &&
+    fail "axis $id: $off offered deadline periods missed in the window, but no episode in its encoder's log"
   awk -v r="$rate" 'BEGIN { exit !(r >= 900 && r <= 1100) }' || fail "axis $id: rate $rate Hz, not about 1000 Hz"
 done
 
@@ -411,8 +472,14 @@ kill -USR1 "$PID_traffic2"   # the 30 s without a server
 cd "$WORK/ds0-state" || exit 1
 start "ds0r" ds0 -- fastdds discovery -x "ve_discovery_server@$SERVER_XML" -i 0 -l "$NET.${IP[ds0]}" -p 11811
 cd - >/dev/null || exit 1
-wait_for 10 grep -q "Server is running" "$WORK/ds0r.out" || fail "server 0 did not restart: $(cat "$WORK/ds0r.out" "$WORK/ds0r.err")"
-echo "[ servers  ] server 0 restarted"
+# The server runs at normal priority, as its unit does; on this 2-core host, busy with the
+# encoders' real-time threads (their Fast DDS threads at 45 among them), its start has taken
+# more than 10 s (once in three runs, 2026-11-29). How long it took is printed; the
+# product's part, the new encoder discovered, has its own bound below.
+t_ds0r=$(tod)
+wait_for "$SERVER_RESTART_BOUND_S" grep -q "Server is running" "$WORK/ds0r.out" ||
+  fail "server 0 did not restart within $SERVER_RESTART_BOUND_S s: $(cat "$WORK/ds0r.out" "$WORK/ds0r.err")"
+echo "[ servers  ] server 0 restarted, running $(awk -v a="$t_ds0r" -v b="$(tod)" 'BEGIN { printf "%.1f", b - a }') s after it was started"
 t6=$(tod)
 start e6 e6 "FASTRTPS_DEFAULT_PROFILES_FILE=$WORK/client.xml" -- \
   "$VE" run --config "$WORK/enc6.yaml" --domain "$D" --duration "$((NEW_BOUND_S + 15))" --status-period 10

@@ -8,6 +8,10 @@
 // Defaults: 4000 Hz, 1 thread, until SIGINT/SIGTERM (duration 0), stalls of 4 ms.
 // Prints "READY" once the threads run, and at the end
 //   END wakeups=W late=L stalls=S max_late_us=M
+// preceded by one line per stall (the first 4096 of each thread), in the order found:
+//   STALL HH:MM:SS.uuuuuu LATE_US
+// the local time of day at which the thread was due, and how late it woke: the interval
+// the host held it, to line up with other logs (the monitor's gaps) in time.
 // L: wake-ups that found their next due time already past; S: wake-ups at least MS after
 // their due time (the thread was kept from running that long: as a probe run at a real-time
 // priority, the host's stalls; tests/plant/discovery_server_test.sh); M: the latest one.
@@ -19,6 +23,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <string>
 #include <thread>
 #include <vector>
@@ -52,9 +57,17 @@ int main(int argc, char** argv) {
   const auto stall_ns = static_cast<std::int64_t>(stall_ms * 1e6);
   std::atomic<std::uint64_t> wakeups{0}, late{0}, stalls{0};
   std::atomic<std::int64_t> max_late_ns{0};
+  struct Stall {
+    std::int64_t due_realtime_ns;
+    std::int64_t late_ns;
+  };
+  constexpr std::size_t kStallsKept = 4096;
+  std::vector<std::vector<Stall>> stall_log(static_cast<std::size_t>(threads));
+  for (auto& l : stall_log) l.reserve(kStallsKept);  // nothing allocated while pacing
   std::vector<std::thread> pool;
   for (int t = 0; t < threads; ++t)
-    pool.emplace_back([&] {
+    pool.emplace_back([&, t] {
+      auto& log = stall_log[static_cast<std::size_t>(t)];
       std::int64_t due = ve::drivers::monotonic_ns();
       std::uint64_t n = 0, l = 0, st = 0;
       std::int64_t worst = 0;
@@ -64,7 +77,14 @@ int main(int argc, char** argv) {
         ++n;
         const std::int64_t lateness = ve::drivers::monotonic_ns() - due;
         if (lateness > period_ns) ++l;
-        if (lateness >= stall_ns) ++st;
+        if (lateness >= stall_ns) {
+          ++st;
+          if (log.size() < kStallsKept) {
+            timespec rt{};
+            clock_gettime(CLOCK_REALTIME, &rt);
+            log.push_back({rt.tv_sec * 1000000000LL + rt.tv_nsec - lateness, lateness});
+          }
+        }
         if (lateness > worst) worst = lateness;
       }
       wakeups += n;
@@ -82,6 +102,14 @@ int main(int argc, char** argv) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   for (auto& t : pool) t.join();
+  for (const auto& l : stall_log)
+    for (const auto& st : l) {
+      const std::time_t secs = static_cast<std::time_t>(st.due_realtime_ns / 1000000000LL);
+      std::tm tm{};
+      localtime_r(&secs, &tm);
+      std::printf("STALL %02d:%02d:%02d.%06lld %lld\n", tm.tm_hour, tm.tm_min, tm.tm_sec,
+                  static_cast<long long>(st.due_realtime_ns % 1000000000LL / 1000), static_cast<long long>(st.late_ns / 1000));
+    }
   std::printf("END wakeups=%llu late=%llu stalls=%llu max_late_us=%lld\n",
               static_cast<unsigned long long>(wakeups.load()), static_cast<unsigned long long>(late.load()),
               static_cast<unsigned long long>(stalls.load()), static_cast<long long>(max_late_ns.load() / 1000));
