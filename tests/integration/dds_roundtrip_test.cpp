@@ -7,7 +7,10 @@
 #include <fcntl.h>
 
 #include <cmath>
+#include <memory>
 #include <mutex>
+#include <regex>
+#include <sstream>
 #include <vector>
 
 #include "config/loader.hpp"
@@ -18,6 +21,9 @@
 #include "temp_dir.hpp"
 #include "test_domain.hpp"
 #include "sim/motion_profile.hpp"
+
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 namespace {
 
@@ -141,6 +147,15 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
   // stopped. At real speed that is 20 ms after the last sample; the stall lasts at
   // least 300 ms, and as long as it takes a subscriber slowed by a sanitizer to work
   // through what it had received before (up to patience(3s)).
+  // What the reader logs is kept (the gap, once over, with when it began and how long).
+  std::ostringstream logged;
+  const auto previous_logger = spdlog::default_logger();
+  spdlog::set_default_logger(
+      std::make_shared<spdlog::logger>("roundtrip", std::make_shared<spdlog::sinks::ostream_sink_mt>(logged)));
+  struct Restore {
+    std::shared_ptr<spdlog::logger> logger;
+    ~Restore() { spdlog::set_default_logger(logger); }
+  } restore{previous_logger};
   const auto missed_before = sub.reader->deadline_missed_total();
   pub.signal(SIGSTOP);
   const auto stall_start = std::chrono::steady_clock::now();
@@ -157,6 +172,18 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
   // Publishing resumes after the stall.
   const auto after = sub.collector.size();
   EXPECT_TRUE(wait_until([&] { return sub.collector.size() > after + 400; }, patience(5s)));
+  // The gap is logged once it is over: axis 1, no sample for at least the stall (less a
+  // little: the last sample before it may have been on its way), when it began, and the
+  // requested periods it cost (20 ms each).
+  spdlog::default_logger()->flush();
+  const std::string text = logged.str();
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(text, m,
+                                std::regex(R"(monitor: axis id 1: no sample for ([0-9.]+) ms from [0-9]{2}:[0-9]{2}:[0-9]{2}\.[0-9]{6}: ([0-9]+) requested deadline period\(s\) missed)")))
+      << text;
+  const double gap_ms = std::stod(m[1].str());
+  EXPECT_GE(gap_ms, stall_ms - 50.0) << text;
+  EXPECT_NEAR(std::stod(m[2].str()), std::floor(gap_ms / 20.0), 1.0) << text;  // the length is rounded in the text
 
   // SIGTERM: a clean exit with status 0.
   pub.signal(SIGTERM);
