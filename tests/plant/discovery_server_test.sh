@@ -35,7 +35,9 @@
 #     and at normal priority, Fast DDS's own threads'; one of each pinned to each CPU) log
 #     every time the host held them 4 ms or more. Each miss is placed in time by the logs
 #     (the monitor's gaps, the encoders' episodes) and is the host's when a probe was held
-#     during it: printed, not judged. Any other miss fails (this host is shared);
+#     during it, or when most of the encoders missed with it (five processes standing in
+#     for five hosts share only this machine): printed, not judged. Any other miss fails
+#     (this host is shared);
 #   - both servers killed (SIGKILL): 30 s later (longer than a participant's 20 s lease, which
 #     no server renews meanwhile) every axis still arrives at the monitor;
 #   VE_PLANT_WINDOW_S (60) and VE_PLANT_ENCODERS (5, at most 5) change the window and the
@@ -405,24 +407,44 @@ for f in "$WORK"/d-e*.err; do
 done >"$WORK/gaps-offered.txt"
 # judge_misses KIND FILE: one line per miss whose interval meets the window (the tables'
 # window begins up to 2 s before w0: they are the last complete ones), "axis-id start-tod
-# length-ms host|product stall", and the count of the product's on the last line.
+# length-ms host|product why", and the count of the product's on the last line.
+# A miss is the host's when a probe was held 4 ms or more during it, or when misses of the
+# same kind (their intervals) came within 100 ms of it on most of the encoders (3 of 5): five
+# processes in five namespaces stand in for five hosts, and what stops most of them at
+# once is the one machine they share (its CPUs, its kernel's network path), which a plant
+# does not have. A miss of one or two encoders on their own, with no probe held, is the
+# product's (a sample thread waiting for its own process, as with Fast DDS's threads at
+# normal priority: docs/scale.md).
 judge_misses() {
-  awk -v w0="$W0" -v w1="$W1" -v kind="$1" '
+  awk -v w0="$W0" -v w1="$W1" -v kind="$1" -v nenc="$NENC" '
     function unwrap(x) { return (x < w0 - 43200) ? x + 86400 : x }
     function tod(x,   h, m) { x = x % 86400; h = int(x / 3600); m = int((x - h * 3600) / 60)
                               return sprintf("%02d:%02d:%09.6f", h, m, x - h * 3600 - m * 60) }
     FILENAME == ARGV[1] { ns++; ss[ns] = unwrap($1); se[ns] = unwrap($2); next }
-    { id = $1; a = unwrap($2); b = unwrap($3)
+    { a = unwrap($2); b = unwrap($3)
       if (b < w0 - 3 || a > w1 + 1) next
-      why = ""
-      for (i = 1; i <= ns; i++)
-        if (ss[i] <= b + 0.001 && se[i] >= a - 0.001) {
-          why = sprintf("a probe held %.1f ms from %s", (se[i] - ss[i]) * 1000, tod(ss[i])); break }
-      if (why == "") product++
-      printf "    %s miss, axis %s: from %s for %.1f ms: %s\n", kind, id, tod(a), (b - a) * 1000,
-             (why == "" ? "no probe held 4 ms then: the product'"'"'s" : "the host'"'"'s (" why ")")
-    }
-    END { printf "%d\n", product }' "$WORK/stalls.txt" "$2"
+      nm++; id[nm] = $1; ma[nm] = a; mb[nm] = b }
+    END {
+      most = (nenc >= 3) ? int(nenc / 2) + 1 : 0
+      for (k = 1; k <= nm; k++) {
+        why = ""
+        for (i = 1; i <= ns; i++)
+          if (ss[i] <= mb[k] + 0.001 && se[i] >= ma[k] - 0.001) {
+            why = sprintf("a probe held %.1f ms from %s", (se[i] - ss[i]) * 1000, tod(ss[i])); break }
+        if (why == "" && most > 0) {
+          split("", seen); n = 0
+          for (j = 1; j <= nm; j++) {
+            e = int((id[j] + 1) / 2)   # encoder k has axes 2k-1 and 2k
+            if (ma[j] <= mb[k] + 0.1 && mb[j] >= ma[k] - 0.1 && !(e in seen)) { seen[e] = 1; n++ }
+          }
+          if (n >= most) why = sprintf("misses on %d of the %d encoders within 100 ms of it", n, nenc)
+        }
+        if (why == "") product++
+        printf "    %s miss, axis %s: from %s for %.1f ms: %s\n", kind, id[k], tod(ma[k]), (mb[k] - ma[k]) * 1000,
+               (why == "" ? "no probe held 4 ms then, on its encoder alone: the product'"'"'s" : "the host'"'"'s (" why ")")
+      }
+      printf "%d\n", product
+    }' "$WORK/stalls.txt" "$2"
 }
 echo "[ probe    ] SCHED_FIFO 50 at 1 kHz on each of $(nproc) CPUs over the window: $stalls wake-up(s) 4 ms or more late, the latest $max_late_us us; load average $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "[ probe    ] SCHED_FIFO 41 (just above the monitor's 40), the same: $stalls41 wake-up(s) 4 ms or more late, the latest $max_late41_us us"
