@@ -5,11 +5,20 @@
 
 #include <atomic>
 #include <cstdint>
+#include <string>
 
 namespace ve::drivers {
 
 /// CLOCK_MONOTONIC [ns].
 std::int64_t monotonic_ns();
+
+/// CLOCK_REALTIME [ns].
+std::int64_t realtime_ns();
+
+/// "HH:MM:SS.uuuuuu": the local time of day of a CLOCK_REALTIME instant, to the
+/// microsecond. What logs of different processes are lined up on (the monitor's
+/// gaps, the plant test's probes of the host's stalls).
+std::string time_of_day_us(std::int64_t realtime_ns);
 
 /// Sleeps until `due_ns` on CLOCK_MONOTONIC, in slices of at most 2 ms so that
 /// `stop` is noticed promptly. False when stopped.

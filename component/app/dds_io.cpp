@@ -1,12 +1,12 @@
 #include "dds_io.hpp"
 
 #include "deadline_periods.hpp"
+#include "pacing.hpp"  // drivers/pacing.hpp: the time of day of a gap
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
-#include <ctime>
 #include <deque>
 #include <fstream>
 #include <iterator>
@@ -962,14 +962,8 @@ class StateReader::Listener : public fdds::DataReaderListener {
   // day, to the microsecond, to line it up with other logs of the host), how long it
   // was and the periods it cost. Rare by nature, so logged each time.
   static void log_gap(std::uint32_t axis_id, std::int64_t gap_ns, std::uint64_t periods) {
-    const auto began = std::chrono::system_clock::now() - std::chrono::nanoseconds(gap_ns);
-    const auto us = std::chrono::duration_cast<std::chrono::microseconds>(began.time_since_epoch()).count();
-    const std::time_t secs = static_cast<std::time_t>(us / 1000000);
-    std::tm tm{};
-    localtime_r(&secs, &tm);
-    spdlog::warn("monitor: axis id {}: no sample for {:.1f} ms from {:02d}:{:02d}:{:02d}.{:06d}: {} requested "
-                 "deadline period(s) missed",
-                 axis_id, gap_ns * 1e-6, tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<int>(us % 1000000), periods);
+    spdlog::warn("monitor: axis id {}: no sample for {:.1f} ms from {}: {} requested deadline period(s) missed",
+                 axis_id, gap_ns * 1e-6, drivers::time_of_day_us(drivers::realtime_ns() - gap_ns), periods);
   }
 
   void on_requested_deadline_missed(fdds::DataReader*, const fdds::RequestedDeadlineMissedStatus& st) override {

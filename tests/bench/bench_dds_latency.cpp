@@ -1144,58 +1144,37 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   const double w50u = ratio(WU.s.p50_us, BU.s.p50_us), w99u = ratio(WU.s.p99_us, BU.s.p99_us);
 
   // 3: sustained rate through the product's writer/reader (shared memory, as a local consumer).
-  std::fprintf(stderr, "  sustained rate: product writer as fast as it can for %.1f s ...\n", opt.max_s);
-  PubResult max_rate = run_pair_retry("product", "shm", opt.domain + 3, 0.0, opt.max_s, 0);
-  if (!max_rate.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", max_rate.error.c_str());
-    return 1;
-  }
+  // sustained(WHAT, KIND, DOMAIN OFFSET, RATE (0: as fast as it can), SECONDS, PRIORITY, OUT): one run,
+  // announced; false when it failed (said).
+  auto sustained = [&](const std::string& what, const char* kind, int domain_offset, double rate_hz, double seconds,
+                       int rt_priority, PubResult& out) {
+    std::fprintf(stderr, "  sustained rate: %s for %.1f s ...\n", what.c_str(), seconds);
+    out = run_pair_retry(kind, "shm", opt.domain + domain_offset, rate_hz, seconds, 0, rt_priority);
+    if (!out.ok) std::fprintf(stderr, "    FAILED: %s\n", out.error.c_str());
+    return out.ok;
+  };
+  PubResult max_rate, paced_normal, paced_rt, bare_paced, bare_paced_rt, bare_max;
+  if (!sustained("product writer as fast as it can", "product", 3, 0.0, opt.max_s, 0, max_rate)) return 1;
   // Paced at 20 kHz with normal scheduling (the target is judged on this run), and with
   // --rt-priority once more with SCHED_FIFO on both sides, as the service can run its
   // sample threads (a drive controller's reader would run real-time too).
-  std::fprintf(stderr, "  sustained rate: product writer paced at 20 kHz for %.1f s, normal scheduling ...\n",
-               opt.rate_s);
-  PubResult paced_normal = run_pair_retry("product", "shm", opt.domain + 4, 20000.0, opt.rate_s, 0);
-  if (!paced_normal.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", paced_normal.error.c_str());
+  if (!sustained("product writer paced at 20 kHz, normal scheduling", "product", 4, 20000.0, opt.rate_s, 0,
+                 paced_normal))
     return 1;
-  }
   const PubResult& paced = paced_normal;
-  PubResult paced_rt;
-  if (opt.rt_priority > 0) {
-    std::fprintf(stderr, "  sustained rate: product writer paced at 20 kHz for %.1f s, SCHED_FIFO %d on both sides ...\n",
-                 opt.rate_s, opt.rt_priority);
-    paced_rt = run_pair_retry("product", "shm", opt.domain + 4, 20000.0, opt.rate_s, 0, opt.rt_priority);
-    if (!paced_rt.ok) {
-      std::fprintf(stderr, "    FAILED: %s\n", paced_rt.error.c_str());
-      return 1;
-    }
-  }
-  std::fprintf(stderr, "  sustained rate: bare writer paced at 20 kHz for %.1f s (reference) ...\n", opt.rate_s);
-  PubResult bare_paced = run_pair_retry("bare", "shm", opt.domain + 5, 20000.0, opt.rate_s, 0);
-  if (!bare_paced.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", bare_paced.error.c_str());
+  if (opt.rt_priority > 0 &&
+      !sustained(fmt("product writer paced at 20 kHz, SCHED_FIFO %d on both sides", opt.rt_priority), "product", 4,
+                 20000.0, opt.rate_s, opt.rt_priority, paced_rt))
     return 1;
-  }
+  if (!sustained("bare writer paced at 20 kHz (reference)", "bare", 5, 20000.0, opt.rate_s, 0, bare_paced)) return 1;
   // The same at the real-time run's priority: what the host does to a bare writer
   // scheduled like the product's (a bare writer at normal priority waits for CPU
   // time a SCHED_FIFO thread would have had).
-  PubResult bare_paced_rt;
-  if (opt.rt_priority > 0) {
-    std::fprintf(stderr, "  sustained rate: bare writer paced at 20 kHz for %.1f s, SCHED_FIFO %d on both sides (reference) ...\n",
-                 opt.rate_s, opt.rt_priority);
-    bare_paced_rt = run_pair_retry("bare", "shm", opt.domain + 5, 20000.0, opt.rate_s, 0, opt.rt_priority);
-    if (!bare_paced_rt.ok) {
-      std::fprintf(stderr, "    FAILED: %s\n", bare_paced_rt.error.c_str());
-      return 1;
-    }
-  }
-  std::fprintf(stderr, "  sustained rate: bare writer as fast as it can for %.1f s (reference) ...\n", opt.max_s);
-  PubResult bare_max = run_pair_retry("bare", "shm", opt.domain + 5, 0.0, opt.max_s, 0);
-  if (!bare_max.ok) {
-    std::fprintf(stderr, "    FAILED: %s\n", bare_max.error.c_str());
+  if (opt.rt_priority > 0 &&
+      !sustained(fmt("bare writer paced at 20 kHz, SCHED_FIFO %d on both sides (reference)", opt.rt_priority), "bare",
+                 5, 20000.0, opt.rate_s, opt.rt_priority, bare_paced_rt))
     return 1;
-  }
+  if (!sustained("bare writer as fast as it can (reference)", "bare", 5, 0.0, opt.max_s, 0, bare_max)) return 1;
 
   // 4: CPU of virtual-encoder run: shared memory only on both sides, Fast DDS's
   // built-in transports on both sides (shared memory and UDP: every sample is sent

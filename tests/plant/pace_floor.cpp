@@ -23,7 +23,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <ctime>
 #include <string>
 #include <thread>
 #include <vector>
@@ -79,11 +78,7 @@ int main(int argc, char** argv) {
         if (lateness > period_ns) ++l;
         if (lateness >= stall_ns) {
           ++st;
-          if (log.size() < kStallsKept) {
-            timespec rt{};
-            clock_gettime(CLOCK_REALTIME, &rt);
-            log.push_back({rt.tv_sec * 1000000000LL + rt.tv_nsec - lateness, lateness});
-          }
+          if (log.size() < kStallsKept) log.push_back({ve::drivers::realtime_ns() - lateness, lateness});
         }
         if (lateness > worst) worst = lateness;
       }
@@ -103,13 +98,9 @@ int main(int argc, char** argv) {
   }
   for (auto& t : pool) t.join();
   for (const auto& l : stall_log)
-    for (const auto& st : l) {
-      const std::time_t secs = static_cast<std::time_t>(st.due_realtime_ns / 1000000000LL);
-      std::tm tm{};
-      localtime_r(&secs, &tm);
-      std::printf("STALL %02d:%02d:%02d.%06lld %lld\n", tm.tm_hour, tm.tm_min, tm.tm_sec,
-                  static_cast<long long>(st.due_realtime_ns % 1000000000LL / 1000), static_cast<long long>(st.late_ns / 1000));
-    }
+    for (const auto& st : l)
+      std::printf("STALL %s %lld\n", ve::drivers::time_of_day_us(st.due_realtime_ns).c_str(),
+                  static_cast<long long>(st.late_ns / 1000));
   std::printf("END wakeups=%llu late=%llu stalls=%llu max_late_us=%lld\n",
               static_cast<unsigned long long>(wakeups.load()), static_cast<unsigned long long>(late.load()),
               static_cast<unsigned long long>(stalls.load()), static_cast<long long>(max_late_ns.load() / 1000));
