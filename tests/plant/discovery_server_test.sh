@@ -213,8 +213,9 @@ stop_group() {  # stop_group PID SIGNAL
   wait "$1" 2>/dev/null
 }
 tod() { date +%s.%N; }
-# Seconds since midnight of a log line's "HH:MM:SS.mmm" (the product's log pattern).
-log_seconds() { awk -F'[:. ]' '{ printf "%.3f\n", $1 * 3600 + $2 * 60 + $3 + $4 / 1000; exit }' <<<"$1"; }
+# Seconds since midnight of a time of day "HH:MM:SS[.fraction]" at the start of a text (a
+# log line's, the product's pattern; or the probes' and the monitor's to the microsecond).
+log_seconds() { awk -F: '{ printf "%.6f\n", $1 * 3600 + $2 * 60 + $3; exit }' <<<"$1"; }
 now_of_day() { date +%H:%M:%S.%3N; }
 # The last complete table of a monitor's output: rows "name(id) pos vel sx sv rate r/o gaps ...".
 last_table() {
@@ -375,8 +376,7 @@ probe_figures 0; stalls0=$p_stalls; max_late0_us=$p_late_us
 # it: it is printed with that stall, not judged. Every other miss fails the test. All
 # times are local times of day (seconds since midnight; a window across midnight is
 # unwrapped).
-tod_s() { awk -F: '{ printf "%.6f\n", $1 * 3600 + $2 * 60 + $3; exit }' <<<"$1"; }
-W0=$(tod_s "$w0_tod"); W1=$(tod_s "$w1_tod")
+W0=$(log_seconds "$w0_tod"); W1=$(log_seconds "$w1_tod")
 cat "$WORK"/probe-*-cpu*.out | awk '/^STALL / { split($2, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]
                                                printf "%.6f %.6f\n", s, s + $3 / 1e6 }' >"$WORK/stalls.txt"
 # Requested: "axis-id start end periods" from the monitor's log.
