@@ -6,11 +6,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdlib>
 #include <deque>
 #include <fstream>
 #include <iterator>
 #include <mutex>
+#include <thread>
 #include <tuple>
 #include <type_traits>
 
@@ -966,21 +968,48 @@ class StateReader::Listener : public fdds::DataReaderListener {
                  axis_id, gap_ns * 1e-6, drivers::time_of_day_us(drivers::realtime_ns() - gap_ns), periods);
   }
 
-  void on_requested_deadline_missed(fdds::DataReader*, const fdds::RequestedDeadlineMissedStatus& st) override {
-    // Whole periods without a sample, not Fast DDS's reports (app/deadline_periods.hpp).
-    std::lock_guard<std::mutex> lock(mutex);
-    const auto it = handles.find(st.last_instance_handle);
-    if (it == handles.end()) {  // no sample of it taken yet: trust the report
-      missed_total.fetch_add(1);
-      return;
+  // The requested deadline, checked here rather than by Fast DDS: Fast DDS 2.9 re-arms a
+  // reader's deadline timer on every sample it receives, a wake-up of its event thread per
+  // sample (about a third of `monitor`'s CPU at 10,000 samples/s, docs/dds-interface.md).
+  // This thread looks every half period: an instance silent for a whole period or more gets
+  // the whole periods not counted yet (app/deadline_periods.hpp), as a report would.
+  void check_deadlines() {
+    const std::int64_t step_ns = std::max<std::int64_t>(deadline_ns / 2, 1000000);
+    std::unique_lock<std::mutex> lock(mutex);
+    while (!stop_checking) {
+      checker_wake.wait_for(lock, std::chrono::nanoseconds(step_ns), [this] { return stop_checking; });
+      if (stop_checking) break;
+      const std::int64_t now_ns = steady_ns();
+      for (auto& [handle, instance] : handles) {
+        if (instance.last_sample_ns == 0 || now_ns - instance.last_sample_ns < deadline_ns) continue;
+        const std::uint64_t added = instance.periods.on_report(instance.last_sample_ns, now_ns, deadline_ns);
+        if (added == 0) continue;
+        missed_total.fetch_add(added);
+        axes[instance.axis_id].deadline_missed += added;
+      }
     }
-    const std::uint64_t added = it->second.periods.on_report(it->second.last_sample_ns, steady_ns(), deadline_ns);
-    if (added == 0) {
-      early_reports.fetch_add(1);
-      return;
+  }
+
+  void start_checking() {
+    if (deadline_ns > 0) checker = std::thread([this] { check_deadlines(); });
+  }
+
+  void stop_checker() {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      stop_checking = true;
     }
-    missed_total.fetch_add(added);
-    axes[it->second.axis_id].deadline_missed += added;
+    checker_wake.notify_all();
+    if (checker.joinable()) checker.join();
+  }
+
+  // Fast DDS's best-effort reader counts the writers' RTPS sequence numbers it never
+  // received: state samples a writer handed to the network that did not reach this
+  // reader (lost on the way or at this host's socket). A sequence gap of an axis with
+  // none of these was never sent (the encoder's write failed).
+  void on_sample_lost(fdds::DataReader* reader, const fdds::SampleLostStatus& st) override {
+    if (reader == state_reader && st.total_count_change > 0)
+      lost_total.fetch_add(static_cast<std::uint64_t>(st.total_count_change));
   }
 
   void on_subscription_matched(fdds::DataReader* reader, const fdds::SubscriptionMatchedStatus& st) override {
@@ -1009,9 +1038,12 @@ class StateReader::Listener : public fdds::DataReaderListener {
   };
   std::map<eprosima::fastrtps::rtps::InstanceHandle_t, Instance> handles;
   std::int64_t deadline_ns = 0;  ///< requested; set before the readers exist
-  std::atomic<std::uint64_t> early_reports{0};
+  std::thread checker;           ///< check_deadlines(), while deadline_ns > 0
+  std::condition_variable checker_wake;
+  bool stop_checking = false;    ///< with the mutex held
   std::atomic<std::uint64_t> missed_total{0};
   std::atomic<std::uint64_t> total{0};
+  std::atomic<std::uint64_t> lost_total{0};
   std::atomic<std::uint64_t> diagnostics_total{0};
   MatchCount matched;
   MatchCount diagnostics_matched;
@@ -1021,12 +1053,15 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
     : ctx_(ctx), listener_(std::make_unique<Listener>(std::move(on_sample), std::move(on_diagnostics))) {
   auto* sub = ctx_.subscriber();
   if (sub == nullptr) return;
-  fdds::StatusMask mask = fdds::StatusMask::data_available() << fdds::StatusMask::requested_deadline_missed()
-                          << fdds::StatusMask::subscription_matched();
+  fdds::StatusMask mask = fdds::StatusMask::data_available() << fdds::StatusMask::subscription_matched()
+                          << fdds::StatusMask::sample_lost();
   // The readers are created without a listener and get it once the listener knows them.
   fdds::DataReaderQos sq;
   endpoint_qos<ve::dds::EncoderState>(ctx_, sq);
-  sq.deadline().period = deadline_ms > 0 ? duration_ms(deadline_ms) : eprosima::fastrtps::c_TimeInfinite;
+  // No deadline asked of Fast DDS: this reader checks it itself (Listener::check_deadlines).
+  // So it also matches a writer that offers a longer deadline, or none, and judges its
+  // stream against deadline_ms all the same.
+  sq.deadline().period = eprosima::fastrtps::c_TimeInfinite;
   listener_->deadline_ns = deadline_ms > 0 ? static_cast<std::int64_t>(std::llround(deadline_ms * 1e6)) : 0;
   fdds::DataReaderQos dq;
   endpoint_qos<ve::dds::AxisDescription>(ctx_, dq);
@@ -1049,9 +1084,11 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
   // Matches made before the listener was attached (a writer already on the domain).
   if (state_reader_ != nullptr) listener_->matched.sync(*state_reader_);
   if (diagnostics_reader_ != nullptr) listener_->diagnostics_matched.sync(*diagnostics_reader_);
+  if (state_reader_ != nullptr) listener_->start_checking();
 }
 
 StateReader::~StateReader() {
+  listener_->stop_checker();
   for (auto* r : {state_reader_, description_reader_, diagnostics_reader_}) delete_endpoint(ctx_, r);
 }
 
@@ -1069,10 +1106,10 @@ std::vector<AxisStats> StateReader::snapshot() {
 }
 
 std::uint64_t StateReader::deadline_missed_total() const { return listener_->missed_total.load(); }
-std::uint64_t StateReader::deadline_early_reports() const { return listener_->early_reports.load(); }
 int StateReader::matched_writers() const { return listener_->matched.load(); }
 int StateReader::matched_diagnostics_writers() const { return listener_->diagnostics_matched.load(); }
 std::uint64_t StateReader::total_received() const { return listener_->total.load(); }
+std::uint64_t StateReader::samples_lost() const { return listener_->lost_total.load(); }
 std::uint64_t StateReader::diagnostics_received() const { return listener_->diagnostics_total.load(); }
 
 // ---------------------------------------------------------------- calibration

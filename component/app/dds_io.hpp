@@ -357,13 +357,15 @@ class StateReader {
   }
 
   std::vector<AxisStats> snapshot();
-  /// Requested deadline periods missed, all axes (Fast DDS's early reports not counted).
+  /// Requested deadline periods missed, all axes: whole periods without a sample of an
+  /// axis, counted by this reader (not requested of Fast DDS: see the constructor).
   std::uint64_t deadline_missed_total() const;
-  /// Fast DDS's requested-deadline reports before a whole period without a sample had passed.
-  std::uint64_t deadline_early_reports() const;
   int matched_writers() const;
   int matched_diagnostics_writers() const;
   std::uint64_t total_received() const;
+  /// State samples Fast DDS knows were sent and never arrived (gaps in the writers' RTPS
+  /// sequence numbers), all axes: lost between the writer and this reader.
+  std::uint64_t samples_lost() const;
   std::uint64_t diagnostics_received() const;
 
  private:

@@ -74,7 +74,7 @@ void every_axis_reaches(const char* profiles_file) {
   const std::string log = run.log();
   for (int id = 1; id <= kAxes; ++id) {
     const std::string axis = "axis 'a" + std::to_string(id) + "': ";
-    std::string summary;  // "axis 'aN': S samples estimated, P published, D diagnostics, ..."
+    std::string summary;  // "axis 'aN': S samples estimated, P published (F refused by Fast DDS), D diagnostics, ..."
     for (auto at = log.find(axis); at != std::string::npos && summary.empty(); at = log.find(axis, at + 1)) {
       const std::string line = log.substr(at, log.find('\n', at) - at);
       if (line.find(" samples estimated") != std::string::npos) summary = line;

@@ -6,6 +6,10 @@
 
 #include <fcntl.h>
 
+#include <atomic>
+#include <fstream>
+#include <iterator>
+
 #include <cmath>
 #include <memory>
 #include <mutex>
@@ -189,6 +193,61 @@ TEST(DdsRoundTrip, TwoProcessesSequenceValuesDescriptionDeadlineAndShutdown) {
   pub.signal(SIGTERM);
   EXPECT_EQ(pub.wait_exit(patience(10s)), 0) << pub.log();
   EXPECT_NE(pub.log().find("published"), std::string::npos) << pub.log();
+}
+
+// Samples that a writer sent and that never reached the reader (here: its socket buffer
+// overflowed while its receive thread was held) are counted as lost on the way, one for
+// each sequence gap: a reader can tell them from samples its encoder never sent.
+TEST(DdsRoundTrip, SamplesDroppedAtAHeldReadersSocketAreCountedAsLostOnTheWay) {
+  const int domain = ve::test::dds_domain();
+  ve::test::TempDir dir;
+  // The shipped profiles with a 64 KiB receive buffer instead of 4 MiB (Fast DDS takes no
+  // less than its largest message): about a hundred datagrams, tens of ms of the 4 kHz stream.
+  std::ifstream in(std::string(VE_SOURCE_DIR) + "/deploy/dds-profiles.xml");
+  std::string xml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string big = "<receiveBufferSize>4194304</receiveBufferSize>";
+  ASSERT_NE(xml.find(big), std::string::npos);
+  xml.replace(xml.find(big), big.size(), "<receiveBufferSize>65536</receiveBufferSize>");
+  ve::app::DdsOptions o;
+  o.domain = domain;
+  o.participant_name = "integration-test";
+  o.profiles_file = dir.write("small-buffer.xml", xml);
+  std::string error;
+  auto ctx = ve::app::DdsContext::create(o, error);
+  ASSERT_TRUE(ctx) << error;
+  Collector collector;
+  std::atomic<bool> hold{false};
+  auto reader = std::make_unique<ve::app::StateReader>(*ctx, 0.0, [&](const ve::dds::EncoderState& s) {
+    collector(s);
+    if (hold.exchange(false)) std::this_thread::sleep_for(1s);  // the receive thread is held
+  });
+  ASSERT_TRUE(reader->ok());
+  ChildProcess pub(run_args(data("standstill.yaml"), domain, 60), (dir.path / "run.log").string());
+  ASSERT_TRUE(pub.started());
+  ASSERT_TRUE(wait_until([&] { return collector.size() >= 400; }, patience(20s))) << pub.log();
+  const auto lost_before = reader->samples_lost();
+  hold = true;
+  ASSERT_TRUE(wait_until([&] { return !hold.load(); }, patience(5s)));
+  const auto resumed = collector.size();
+  ASSERT_TRUE(wait_until([&] { return collector.size() > resumed + 400; }, patience(10s))) << pub.log();
+  pub.signal(SIGSTOP);  // nothing more in flight while the two counts are read
+  std::this_thread::sleep_for(100ms);
+  const auto samples = collector.copy();
+  const auto lost = reader->samples_lost();
+  pub.signal(SIGCONT);
+  std::uint64_t gaps = 0;
+  for (std::size_t i = 1; i < samples.size(); ++i) gaps += samples[i].sequence_number() - samples[i - 1].sequence_number() - 1;
+  // 1 s of a 4 kHz stream against a buffer of about a hundred datagrams.
+  EXPECT_GT(gaps, 1000u);
+  EXPECT_EQ(lost, gaps) << "lost on the way " << lost << " (before the hold: " << lost_before << "), sequence gaps "
+                        << gaps;
+  std::printf("[ figures  ] 1 s hold of the reader's receive thread, 64 KiB receive buffer: %llu samples lost on the "
+              "way, %llu sequence gaps\n",
+              static_cast<unsigned long long>(lost), static_cast<unsigned long long>(gaps));
+  pub.signal(SIGTERM);
+  EXPECT_EQ(pub.wait_exit(patience(10s)), 0) << pub.log();
+  reader.reset();
+  ctx.reset();
 }
 
 TEST(DdsRoundTrip, PublishedPositionAtOneMetrePerSecondIsWithinSpec) {

@@ -213,6 +213,34 @@ stop_group() {  # stop_group PID SIGNAL
   wait "$1" 2>/dev/null
 }
 tod() { date +%s.%N; }
+# CPU time (clock ticks, user + system) of the processes in namespace NAME.
+ns_cpu_ticks() {
+  local pid t=0
+  for pid in $(ip netns pids "$(ns_of "$1")" 2>/dev/null); do
+    t=$((t + $(awk '{ print $14 + $15 }' "/proc/$pid/stat" 2>/dev/null || echo 0)))
+  done
+  echo "$t"
+}
+# Where the kernel dropped datagrams, for a window's sequence gaps: "softnet_dropped=N
+# softnet_squeezed=N veth_dropped=N udp_rcvbuf_mon=N udp_inerrors_mon=N udp_sndbuf_enc=N".
+# softnet: every CPU's backlog queue (netif_rx: each veth hop into the bridge and out of it;
+# a drop when it holds net.core.netdev_max_backlog) and the times its processing was cut
+# short; veth: the host ends' rx/tx drops; UDP: the monitor's socket buffers (receive) and
+# the encoders' (send), each namespace's own counters.
+kernel_counters() {
+  local sd=0 sq=0 vd=0 i f _p d q _rest
+  while read -r _p d q _rest; do sd=$((sd + 16#$d)); sq=$((sq + 16#$q)); done </proc/net/softnet_stat
+  for i in "${!NSS[@]}"; do
+    for f in rx_dropped tx_dropped; do vd=$((vd + $(cat "/sys/class/net/${P}h$i/statistics/$f" 2>/dev/null || echo 0))); done
+  done
+  udp() {  # udp NS FIELD: the namespace's Udp FIELD
+    ip netns exec "$(ns_of "$1")" cat /proc/net/snmp 2>/dev/null |
+      awk -v f="$2" '/^Udp:/ { if (!h) { for (i = 2; i <= NF; i++) col[$i] = i; h = 1 } else { print $(col[f]) + 0; exit } }'
+  }
+  local sb=0 k
+  for k in $(seq 1 "$NENC"); do sb=$((sb + $(udp "e$k" SndbufErrors))); done
+  echo "softnet_dropped=$sd softnet_squeezed=$sq veth_dropped=$vd udp_rcvbuf_mon=$(udp mon RcvbufErrors) udp_inerrors_mon=$(udp mon InErrors) udp_sndbuf_enc=$sb"
+}
 # Seconds since midnight of a time of day "HH:MM:SS[.fraction]" at the start of a text (a
 # log line's, the product's pattern; or the probes' and the monitor's to the microsecond).
 log_seconds() { awk -F: '{ printf "%.6f\n", $1 * 3600 + $2 * 60 + $3; exit }' <<<"$1"; }
@@ -340,11 +368,15 @@ for cpu in $(seq 0 $(($(nproc) - 1))); do
 done
 w0_tod=$(now_of_day)
 table_a=$(last_table "$WORK/mon2.out")
+kc_a=$(kernel_counters)
+mon_ticks_a=$(ns_cpu_ticks mon); enc_ticks_a=$(ns_cpu_ticks e1); wt0=$(tod)
 sleep_until_after "$tc2" 21
 kill -USR1 "$PID_traffic2"   # the next 10 s
 sleep_until_after "$tc2" $((11 + WINDOW_S))
 table_b=$(last_table "$WORK/mon2.out")
 w1_tod=$(now_of_day)
+kc_b=$(kernel_counters)
+mon_ticks_b=$(ns_cpu_ticks mon); enc_ticks_b=$(ns_cpu_ticks e1); wt1=$(tod)
 kill -USR1 "$PID_traffic2"   # end of the window
 for pid in "${PROBE_PIDS[@]}"; do stop_group "$pid" INT; done
 # probe_figures PRIO: sets p_stalls (summed) and p_late_us (the latest wake-up) over
@@ -454,6 +486,25 @@ off_out=$(judge_misses offered "$WORK/gaps-offered.txt"); off_product=$(tail -1 
 sed '$d' <<<"$req_out"; sed '$d' <<<"$off_out"
 [ "$req_product" -eq 0 ] || fail "$req_product requested deadline miss(es) in the window with no stall of the host at the time (above)"
 [ "$off_product" -eq 0 ] || fail "$off_product offered deadline miss episode(s) in the window with no stall of the host at the time (above)"
+# The kernel's drops over the window (each counter's increase), printed whatever the gaps.
+kc=""
+for kv in $kc_b; do
+  k=${kv%%=*}
+  kc="$kc $k=$(($(field " $kv" "$k") - $(field " $kc_a" "$k")))"
+done
+echo "[ kernel   ] datagrams dropped over the window:$kc"
+# State samples the monitor's Fast DDS knows were sent and never arrived (its log, at most
+# a line a second): a sequence gap with none of these was never sent by its encoder (the
+# encoders' "refused by Fast DDS", at their end, below).
+lost_window=$(awk -v w0="$W0" -v w1="$W1" '/monitor: [0-9]+ state sample\(s\) lost on the way/ {
+    split($1, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]; if (s < w0 - 43200) s += 86400
+    if (s >= w0 && s <= w1 + 1) { match($0, /monitor: [0-9]+/); n += substr($0, RSTART + 9, RLENGTH - 9) } }
+  END { print n + 0 }' "$WORK/mon2.err")
+awk -v m=$((mon_ticks_b - mon_ticks_a)) -v e=$((enc_ticks_b - enc_ticks_a)) -v hz="$(getconf CLK_TCK)" \
+    -v s="$(awk -v a="$wt0" -v b="$wt1" 'BEGIN { print b - a }')" \
+    'BEGIN { printf "[ cpu      ] over the window: the monitor %.1f %% of a core (%d samples/s), encoder e1 %.1f %% (2 axes at 1 kHz)\n",
+             100 * m / hz / s, '"$NAX"' * 1000, 100 * e / hz / s }'
+echo "[ monitor  ] state samples lost on the way over the window (Fast DDS's count at the monitor, all axes): $lost_window"
 echo "[ window   ] ${WINDOW_S} s; per axis: rate Hz, sequence gaps, requested / offered deadline periods missed (in the window)"
 for id in $(seq 1 "$NAX"); do
   rate=$(table_field "$table_b" "$id" rate)
@@ -524,6 +575,10 @@ for k in $(seq 1 "$NENC"); do stop_group "$(eval echo "\$PID_d_e$k")" INT; done
 stop_group "$PID_mon2" INT
 stop_group "$PID_ds0r" INT
 tail -1 "$WORK/mon2.out" | sed 's/^/[ monitor  ] /'
+# Writes Fast DDS refused in the encoders (their end-of-run lines, the whole run).
+refused=$(cat "$WORK"/d-e*.err | awk '/samples estimated, .* published \([0-9]+ refused by Fast DDS\)/ {
+    match($0, /\([0-9]+ refused/); n += substr($0, RSTART + 1, RLENGTH - 9) } END { print n + 0 }')
+echo "[ encoder  ] writes refused by Fast DDS in the $NENC encoders, whole run: $refused"
 snaps=$(grep SNAPSHOT "$WORK/traffic2.out")
 ds_10=$(sed -n 1p <<<"$snaps"); ds_20=$(sed -n 2p <<<"$snaps"); ds_win=$(sed -n 3p <<<"$snaps")
 ds_dead=$(sed -n 4p <<<"$snaps"); ds_new=$(sed -n 5p <<<"$snaps")
