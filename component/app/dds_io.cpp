@@ -1062,6 +1062,12 @@ StateReader::StateReader(DdsContext& ctx, double deadline_ms, Callback on_sample
   // So it also matches a writer that offers a longer deadline, or none, and judges its
   // stream against deadline_ms all the same.
   sq.deadline().period = eprosima::fastrtps::c_TimeInfinite;
+  // Nor a liveliness lease: with a finite one, Fast DDS 2.9's reader asserts the writer's
+  // liveliness on every sample it receives, and re-arms its liveliness timer each time
+  // (LivelinessManager::assert_liveliness: its event thread woken twice per sample, the
+  // same cost as the deadline's). This reader does not watch liveliness: an encoder that
+  // goes away is seen by its silence (the deadline above) and by the match count.
+  sq.liveliness().lease_duration = eprosima::fastrtps::c_TimeInfinite;
   listener_->deadline_ns = deadline_ms > 0 ? static_cast<std::int64_t>(std::llround(deadline_ms * 1e6)) : 0;
   fdds::DataReaderQos dq;
   endpoint_qos<ve::dds::AxisDescription>(ctx_, dq);

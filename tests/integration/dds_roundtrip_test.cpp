@@ -250,6 +250,53 @@ TEST(DdsRoundTrip, SamplesDroppedAtAHeldReadersSocketAreCountedAsLostOnTheWay) {
   ctx.reset();
 }
 
+// The product's reader (`monitor`) asks Fast DDS for no deadline and checks the one it
+// requests itself: it matches a writer offering a longer deadline, counts the whole periods
+// of each gap between samples, and keeps counting while a writer is silent.
+TEST(DdsRoundTrip, TheProductsReaderChecksItsOwnDeadlineAgainstALongerOffer) {
+  const int domain = ve::test::dds_domain();
+  ve::app::DdsOptions o;
+  o.domain = domain;
+  o.participant_name = "integration-test";
+  std::string error;
+  auto writer_ctx = ve::app::DdsContext::create(o, error);
+  ASSERT_TRUE(writer_ctx) << error;
+  auto reader_ctx = ve::app::DdsContext::create(o, error);
+  ASSERT_TRUE(reader_ctx) << error;
+  {
+    ve::app::StateWriter writer(*writer_ctx, 50.0);  // offers 50 ms
+    const auto slots = writer.add_group({{3, "z"}});
+    ASSERT_EQ(slots.size(), 1u);
+    ve::app::StateReader reader(*reader_ctx, 10.0);  // requests 10 ms, more than offered
+    ASSERT_TRUE(reader.ok());
+    ASSERT_TRUE(wait_until([&] { return reader.matched_writers() == 1 && writer.matched_readers() == 1; },
+                           patience(15s)))
+        << "a 10 ms reader of the product's did not match a 50 ms offer";
+    ve::dds::EncoderState s{};
+    s.axis_id(3);
+    for (int i = 1; i <= 10; ++i) {
+      s.sequence_number(static_cast<std::uint64_t>(i));
+      EXPECT_TRUE(writer.write(slots[0], s));
+      std::this_thread::sleep_for(40ms);
+    }
+    ASSERT_TRUE(wait_until([&] { return reader.total_received() == 10; }, patience(5s)));
+    // Nine gaps of about 40 ms: 3-4 periods of 10 ms each, at least one each wherever the
+    // samples were held on their way.
+    EXPECT_GE(reader.deadline_missed_total(), 9u);
+    // The writer silent since: the periods keep being counted with no sample arriving.
+    const auto after_last = reader.deadline_missed_total();
+    EXPECT_TRUE(wait_until([&] { return reader.deadline_missed_total() >= after_last + 5; }, patience(2s)))
+        << after_last << " -> " << reader.deadline_missed_total();
+    bool per_axis = false;
+    for (const auto& a : reader.snapshot()) per_axis = per_axis || (a.axis_id == 3 && a.deadline_missed >= 9);
+    EXPECT_TRUE(per_axis) << "the misses are not attributed to axis 3";
+    std::printf("[ figures  ] 10 samples 40 ms apart, 10 ms requested against 50 ms offered: %llu periods missed\n",
+                static_cast<unsigned long long>(reader.deadline_missed_total()));
+  }
+  reader_ctx.reset();
+  writer_ctx.reset();
+}
+
 TEST(DdsRoundTrip, PublishedPositionAtOneMetrePerSecondIsWithinSpec) {
   const int domain = ve::test::dds_domain();
   ve::test::TempDir dir;
