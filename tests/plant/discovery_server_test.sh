@@ -37,7 +37,10 @@
 #     (the monitor's gaps, the encoders' episodes) and is the host's when a probe was held
 #     during it, or when most of the encoders missed with it (five processes standing in
 #     for five hosts share only this machine): printed, not judged. Any other miss fails
-#     (this host is shared);
+#     (this host is shared). Printed beside the gaps, over the window: where the kernel
+#     dropped datagrams (backlogs, veth ends, the monitor's and encoders' sockets), the
+#     samples the monitor's Fast DDS knows were sent and never arrived, and the CPU of the
+#     monitor and of one encoder; at the end, the writes Fast DDS refused in the encoders;
 #   - both servers killed (SIGKILL): 30 s later (longer than a participant's 20 s lease, which
 #     no server renews meanwhile) every axis still arrives at the monitor;
 #   VE_PLANT_WINDOW_S (60) and VE_PLANT_ENCODERS (5, at most 5) change the window and the
