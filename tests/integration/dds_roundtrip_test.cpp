@@ -237,8 +237,10 @@ TEST(DdsRoundTrip, SamplesDroppedAtAHeldReadersSocketAreCountedAsLostOnTheWay) {
   pub.signal(SIGCONT);
   std::uint64_t gaps = 0;
   for (std::size_t i = 1; i < samples.size(); ++i) gaps += samples[i].sequence_number() - samples[i - 1].sequence_number() - 1;
-  // 1 s of a 4 kHz stream against a buffer of about a hundred datagrams.
-  EXPECT_GT(gaps, 1000u);
+  // 1 s of a 4 kHz stream against a buffer of about a hundred datagrams: thousands lost at
+  // real speed; under a sanitizer the publisher may not keep 4 kHz, but some are lost.
+  EXPECT_GT(gaps, 0u);
+  if (kRealTimeFigures) EXPECT_GT(gaps, 1000u);
   EXPECT_EQ(lost, gaps) << "lost on the way " << lost << " (before the hold: " << lost_before << "), sequence gaps "
                         << gaps;
   std::printf("[ figures  ] 1 s hold of the reader's receive thread, 64 KiB receive buffer: %llu samples lost on the "
