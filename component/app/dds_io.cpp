@@ -940,12 +940,9 @@ class StateReader::Listener : public fdds::DataReaderListener {
         instance.axis_id = s.axis_id();
         const std::int64_t now_ns =
             std::chrono::duration_cast<std::chrono::nanoseconds>(now.time_since_epoch()).count();
-        if (deadline_ns > 0 && instance.last_sample_ns != 0 && now_ns - instance.last_sample_ns >= deadline_ns) {
-          // A gap of a whole period or more ends: the periods Fast DDS did not report
-          // (its timer fires at truncated times: app/deadline_periods.hpp) count now.
-          const std::uint64_t added = instance.periods.on_report(instance.last_sample_ns, now_ns, deadline_ns);
-          missed_total.fetch_add(added);
-          a.deadline_missed += added;
+        if (deadline_ns > 0 && count_silence(instance, now_ns)) {
+          // A gap of a whole period or more ends: the periods check_deadlines() has not
+          // counted yet (it looks only every half period) count now.
           gap_ns = now_ns - instance.last_sample_ns;  // logged whoever counted its periods
           gap_periods = static_cast<std::uint64_t>(gap_ns / deadline_ns);
         }
@@ -980,13 +977,7 @@ class StateReader::Listener : public fdds::DataReaderListener {
       checker_wake.wait_for(lock, std::chrono::nanoseconds(step_ns), [this] { return stop_checking; });
       if (stop_checking) break;
       const std::int64_t now_ns = steady_ns();
-      for (auto& [handle, instance] : handles) {
-        if (instance.last_sample_ns == 0 || now_ns - instance.last_sample_ns < deadline_ns) continue;
-        const std::uint64_t added = instance.periods.on_report(instance.last_sample_ns, now_ns, deadline_ns);
-        if (added == 0) continue;
-        missed_total.fetch_add(added);
-        axes[instance.axis_id].deadline_missed += added;
-      }
+      for (auto& [handle, instance] : handles) count_silence(instance, now_ns);
     }
   }
 
@@ -1037,6 +1028,16 @@ class StateReader::Listener : public fdds::DataReaderListener {
     DeadlinePeriods periods;
   };
   std::map<eprosima::fastrtps::rtps::InstanceHandle_t, Instance> handles;
+  /// With the mutex held: whether `instance` has been silent a whole deadline period or
+  /// more at now_ns; if so, the whole periods of that silence not counted yet are added to
+  /// its axis' and the total count (app/deadline_periods.hpp).
+  bool count_silence(Instance& instance, std::int64_t now_ns) {
+    if (instance.last_sample_ns == 0 || now_ns - instance.last_sample_ns < deadline_ns) return false;
+    const std::uint64_t added = instance.periods.on_report(instance.last_sample_ns, now_ns, deadline_ns);
+    missed_total.fetch_add(added);
+    axes[instance.axis_id].deadline_missed += added;
+    return true;
+  }
   std::int64_t deadline_ns = 0;  ///< requested; set before the readers exist
   std::thread checker;           ///< check_deadlines(), while deadline_ns > 0
   std::condition_variable checker_wake;
