@@ -244,9 +244,14 @@ kernel_counters() {
   for k in $(seq 1 "$NENC"); do sb=$((sb + $(udp "e$k" SndbufErrors))); done
   echo "softnet_dropped=$sd softnet_squeezed=$sq veth_dropped=$vd udp_rcvbuf_mon=$(udp mon RcvbufErrors) udp_inerrors_mon=$(udp mon InErrors) udp_sndbuf_enc=$sb"
 }
-# Seconds since midnight of a time of day "HH:MM:SS[.fraction]" at the start of a text (a
-# log line's, the product's pattern; or the probes' and the monitor's to the microsecond).
-log_seconds() { awk -F: '{ printf "%.6f\n", $1 * 3600 + $2 * 60 + $3; exit }' <<<"$1"; }
+# awk functions for the logs' times: secs(X), seconds since midnight of a time of day
+# "HH:MM:SS[.fraction]" at the start of X (a log line's, the product's pattern; or the
+# probes' and the monitor's to the microsecond); unwrap(S), S after midnight when the
+# window (from W0, awk's w0) began before it.
+AWK_TIME='function secs(x,   t) { split(x, t, ":"); return t[1] * 3600 + t[2] * 60 + t[3] }
+          function unwrap(x) { return (x < w0 - 43200) ? x + 86400 : x }
+'
+log_seconds() { awk "$AWK_TIME"'{ printf "%.6f\n", secs($0); exit }' <<<"$1"; }
 now_of_day() { date +%H:%M:%S.%3N; }
 # The last complete table of a monitor's output: rows "name(id) pos vel sx sv rate r/o gaps ...".
 last_table() {
@@ -412,20 +417,20 @@ probe_figures 0; stalls0=$p_stalls; max_late0_us=$p_late_us
 # times are local times of day (seconds since midnight; a window across midnight is
 # unwrapped).
 W0=$(log_seconds "$w0_tod"); W1=$(log_seconds "$w1_tod")
-cat "$WORK"/probe-*-cpu*.out | awk '/^STALL / { split($2, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]
+cat "$WORK"/probe-*-cpu*.out | awk "$AWK_TIME"'/^STALL / { s = secs($2)
                                                printf "%.6f %.6f\n", s, s + $3 / 1e6 }' >"$WORK/stalls.txt"
 # Requested: "axis-id start end periods" from the monitor's log.
-awk '/monitor: axis id [0-9]+: no sample for / {
+awk "$AWK_TIME"'/monitor: axis id [0-9]+: no sample for / {
        match($0, /axis id [0-9]+/); id = substr($0, RSTART + 8, RLENGTH - 8)
        match($0, /no sample for [0-9.]+ ms/); len = substr($0, RSTART + 14, RLENGTH - 17) / 1000
-       match($0, /from [0-9:.]+/); split(substr($0, RSTART + 5, RLENGTH - 5), t, ":")
+       match($0, /from [0-9:.]+/); s = secs(substr($0, RSTART + 5, RLENGTH - 5))
        match($0, /: [0-9]+ requested/); n = substr($0, RSTART + 2, RLENGTH - 12)
-       s = t[1] * 3600 + t[2] * 60 + t[3]; printf "%s %.6f %.6f %d\n", id, s, s + len, n }' \
+       printf "%s %.6f %.6f %d\n", id, s, s + len, n }' \
   "$WORK/mon2.err" >"$WORK/gaps-requested.txt"
 # Offered: "axis-id start end" per episode, from each encoder's log.
 for f in "$WORK"/d-e*.err; do
-  awk '/offered deadline of [0-9]+ ms missed/ {
-         split($1, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]
+  awk "$AWK_TIME"'/offered deadline of [0-9]+ ms missed/ {
+         s = secs($1)
          match($0, /\(id [0-9]+\)/); id = substr($0, RSTART + 4, RLENGTH - 5)
          match($0, /of [0-9]+ ms/); dl = substr($0, RSTART + 3, RLENGTH - 6) / 1000
          at[id] = s; open[id] = 1 }
@@ -451,8 +456,7 @@ done >"$WORK/gaps-offered.txt"
 # product's (a sample thread waiting for its own process, as with Fast DDS's threads at
 # normal priority: docs/scale.md).
 judge_misses() {
-  awk -v w0="$W0" -v w1="$W1" -v kind="$1" -v nenc="$NENC" '
-    function unwrap(x) { return (x < w0 - 43200) ? x + 86400 : x }
+  awk -v w0="$W0" -v w1="$W1" -v kind="$1" -v nenc="$NENC" "$AWK_TIME"'
     function tod(x,   h, m) { x = x % 86400; h = int(x / 3600); m = int((x - h * 3600) / 60)
                               return sprintf("%02d:%02d:%09.6f", h, m, x - h * 3600 - m * 60) }
     FILENAME == ARGV[1] { ns++; ss[ns] = unwrap($1); se[ns] = unwrap($2); next }
@@ -499,8 +503,8 @@ echo "[ kernel   ] datagrams dropped over the window:$kc"
 # State samples the monitor's Fast DDS knows were sent and never arrived (its log, at most
 # a line a second): a sequence gap with none of these was never sent by its encoder (the
 # encoders' "refused by Fast DDS", at their end, below).
-lost_window=$(awk -v w0="$W0" -v w1="$W1" '/monitor: [0-9]+ state sample\(s\) lost on the way/ {
-    split($1, t, ":"); s = t[1] * 3600 + t[2] * 60 + t[3]; if (s < w0 - 43200) s += 86400
+lost_window=$(awk -v w0="$W0" -v w1="$W1" "$AWK_TIME"'/monitor: [0-9]+ state sample\(s\) lost on the way/ {
+    s = unwrap(secs($1))
     if (s >= w0 && s <= w1 + 1) { match($0, /monitor: [0-9]+/); n += substr($0, RSTART + 9, RLENGTH - 9) } }
   END { print n + 0 }' "$WORK/mon2.err")
 awk -v m=$((mon_ticks_b - mon_ticks_a)) -v e=$((enc_ticks_b - enc_ticks_a)) -v hz="$(getconf CLK_TCK)" \
