@@ -18,6 +18,10 @@
 // Run from the repository root:
 //   ./build/tests/population_bench [--motors 20] [--first-seed 1] [--out-dir build/accuracy]
 //                                  [--jobs 2] [--no-temperature] [--temperature-signal]
+//                                  [--noise-draw D]
+// --noise-draw D: the runs' sensor noise from another draw (0, the default, is the one
+// of the committed tables): the same motors, calibrations and motions, so a figure that
+// holds on one draw of the noise only shows as one.
 // --temperature-signal: every motor's sensor node reports its temperature (the
 // estimator then starts from what the data sheet predicts for the difference).
 // --thermal-calibration K: each calibration also gets a thermal calibration
@@ -64,12 +68,18 @@ struct Options {
   double thermal_rise_k = 0.0;  ///< != 0: thermal calibration from a second run this far away
   bool cost = false;
   int reps = 7;
+  /// Which draw of the runs' sensor noise (0: the committed tables'): the same motors,
+  /// calibrations and motions under other noise, so that no figure rests on one draw.
+  std::uint64_t noise_draw = 0;
   std::string command;
 };
 
 constexpr Condition kConditions[] = {Condition::as_calibrated, Condition::ramp_plus_10k, Condition::step_minus_10k};
 constexpr int kConditionCount = 3;
 constexpr int kScenarioCount = 5;
+/// Noise seeds of one draw are 1000 + motor seed (runs) and 2000 + motor seed (fault
+/// probe); each further draw adds this, beyond any motor seed.
+constexpr std::uint64_t kNoiseDrawStride = 1000000;
 
 struct Cell {  // one motor, one ruler mode, one condition, one scenario
   bool ok = false;
@@ -104,18 +114,19 @@ bool parse(int argc, char** argv, Options& o) {
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> const char* { return i + 1 < argc ? argv[++i] : nullptr; };
-    if (a == "--motors" || a == "--first-seed" || a == "--jobs" || a == "--reps") {
+    if (a == "--motors" || a == "--first-seed" || a == "--jobs" || a == "--reps" || a == "--noise-draw") {
       const char* v = next();
       char* end = nullptr;
       const long n = v ? std::strtol(v, &end, 10) : -1;
-      if (!v || *end != '\0' || n < 1 || n > 100000) {
-        std::fprintf(stderr, "%s: expected a positive integer\n", a.c_str());
+      if (!v || *end != '\0' || n < (a == "--noise-draw" ? 0 : 1) || n > 100000) {
+        std::fprintf(stderr, "%s: expected %s integer\n", a.c_str(), a == "--noise-draw" ? "a non-negative" : "a positive");
         return false;
       }
       if (a == "--motors") o.motors = static_cast<int>(n);
       if (a == "--first-seed") o.first_seed = static_cast<std::uint64_t>(n);
       if (a == "--jobs") o.jobs = static_cast<int>(n);
       if (a == "--reps") o.reps = static_cast<int>(n);
+      if (a == "--noise-draw") o.noise_draw = static_cast<std::uint64_t>(n);
     } else if (a == "--out-dir") {
       const char* v = next();
       if (!v) return false;
@@ -137,7 +148,7 @@ bool parse(int argc, char** argv, Options& o) {
       o.cost = true;
     } else {
       std::fprintf(stderr,
-                   "usage: %s [--motors N] [--first-seed S] [--out-dir DIR] [--jobs J] [--no-temperature] "
+                   "usage: %s [--motors N] [--first-seed S] [--noise-draw D] [--out-dir DIR] [--jobs J] [--no-temperature] "
                    "[--temperature-signal] [--thermal-calibration K] [--cost [--reps R]]\n",
                    argv[0]);
       return false;
@@ -183,7 +194,7 @@ MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning,
       if (!o.temperature && k > 0) continue;
       for (int s = 0; s < kScenarioCount; ++s) {
         const auto r = bench::run_population_scenario(m.motor, c, scenarios[static_cast<std::size_t>(s)], kConditions[k],
-                                                      1000 + seed);
+                                                      1000 + seed + kNoiseDrawStride * o.noise_draw);
         Cell& cell = m.cell[ruler][k][s];
         cell.ok = r.ok;
         if (!r.ok) continue;
@@ -205,7 +216,8 @@ MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning,
       probe.inject = true;
       probe.sensor = static_cast<int>(seed % static_cast<std::uint64_t>(m.motor.datasheet.hall.count));
       probe.at_s = 5.0;
-      const auto r = bench::run_population_scenario(m.motor, c, scenarios[3], Condition::ramp_plus_10k, 2000 + seed, probe);
+      const auto r = bench::run_population_scenario(m.motor, c, scenarios[3], Condition::ramp_plus_10k,
+                                                    2000 + seed + kNoiseDrawStride * o.noise_draw, probe);
       m.detect_s[ruler] = r.probe_flagged_before ? -2.0 : r.detect_s;
     }
   }
