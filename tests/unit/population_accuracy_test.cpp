@@ -942,9 +942,12 @@ TEST_P(PopulationWarmStart, ValidWaitsForTheFixThatHoldsTheThermometersWidening)
     const auto r = bench::run_population_scenario(
         p, cal, sc, bench::Condition::ramp_plus_10k, 1000 + GetParam(), {},
         [&](double t, const core::EncoderEstimate& e, const core::AxisPipeline& pipeline, const sim::SimSource&) {
-          if (after >= 0 && after < 2 && ++after == 2) sigma_after = e.position_std_m;
+          // The filter's own sigma: the published one also holds, until the reading, what
+          // a temperature not read yet may have done (PopulationWarmStartHeldOut below).
+          const double filter_sigma = std::sqrt(pipeline.filter().position_variance());
+          if (after >= 0 && after < 2 && ++after == 2) sigma_after = filter_sigma;
           if (checked || !pipeline.adaptation().temperature_checked()) {
-            if (!checked) sigma_before = e.position_std_m;
+            if (!checked) sigma_before = filter_sigma;
             return;
           }
           checked = true;
@@ -954,16 +957,54 @@ TEST_P(PopulationWarmStart, ValidWaitsForTheFixThatHoldsTheThermometersWidening)
         });
     ASSERT_TRUE(r.ok) << r.error;
     ASSERT_TRUE(checked) << sc.name << ": the thermometer never read";
-    std::printf("[ figures  ] %-15s thermometer read at %.4f s; position sigma %.2f um before, %.2f um two samples "
-                "after\n",
+    std::printf("[ figures  ] %-15s thermometer read at %.4f s; the filter's position sigma %.2f um before, %.2f um "
+                "two samples after\n",
                 sc.name.c_str(), checked_at, sigma_before * 1e6, sigma_after * 1e6);
     EXPECT_FALSE(valid_at_reading) << sc.name << ": VALID on the sample whose fix predates the widening";
-    EXPECT_GT(sigma_after, sigma_before) << sc.name << ": the widening reaches the published sigma";
+    EXPECT_GT(sigma_after, sigma_before) << sc.name << ": the widening reaches the filter's sigma";
   }
 }
 
 INSTANTIATE_TEST_SUITE_P(Seeds, PopulationWarmStart, ::testing::Values(4u, 5u, 14u, 20u),
                          [](const auto& info) { return "motor_" + std::to_string(info.param); });
+
+// Motor 60 of the held-out set (3 Halls, 10-bit) started from rest at 5 m/s^2, 10 K
+// colder than at calibration, under the second draw of the benchmark's noise
+// (population_bench --noise-draw 1): two of its sensors out of saturation, and the first
+// fix that reads the temperature comes 55 ms into the run. Until then its fixes carry the
+// drift of a temperature nobody has read; sigma held it only where the carriage stands,
+// and the position went 15 um and the velocity 1.5 mm/s off under a sigma of 0.6 um and
+// 0.08 mm/s (NOT VALID: VALID waits for the reading). Asserted over every sample before the
+// reading: the position within 2 sigma, and not VALID. The velocity's sigma holds the
+// drift's pattern at speed, but not all of the velocity error of these first tens of ms:
+// printed, not asserted (149 of 387 samples outside 2 sigma, 4.3 sigma at worst).
+TEST(PopulationWarmStartHeldOut, SigmaHoldsTheUnreadTemperatureWhileMovingOnMotor60) {
+  const WarmStartFromRest w = warm_start_from_rest(60);
+  ASSERT_TRUE(w.cal.ok) << w.cal.error;
+  int before = 0, position_out = 0, velocity_out = 0;
+  double worst_position = 0.0, worst_velocity = 0.0;  // |error| / sigma
+  const auto r = bench::run_population_scenario(
+      w.motor, w.cal, w.scenario, bench::Condition::step_minus_10k, 1000 + 60 + 1000000, {},
+      [&](double, const core::EncoderEstimate& e, const core::AxisPipeline& pipeline, const sim::SimSource& source) {
+        const auto* truth = source.truth();
+        if (!truth || pipeline.adaptation().temperature_checked() || !pipeline.initialised()) return;
+        if (!(e.position_std_m > 0.0 && e.velocity_std_mps > 0.0)) return;
+        ++before;
+        const double zp = std::abs(e.position_m - (truth->position_m - w.cal.zero_m)) / e.position_std_m;
+        const double zv = std::abs(e.velocity_mps - truth->velocity_mps) / e.velocity_std_mps;
+        worst_position = std::max(worst_position, zp);
+        worst_velocity = std::max(worst_velocity, zv);
+        position_out += zp > 2.0;
+        velocity_out += zv > 2.0;
+        EXPECT_FALSE(e.status & core::status::kValid) << "VALID before the temperature is read, moving";
+      });
+  ASSERT_TRUE(r.ok) << r.error;
+  std::printf("[ figures  ] before the first reading: %d samples, %d / %d outside 2 sigma (position / velocity), "
+              "worst %.2f / %.2f sigma\n",
+              before, position_out, velocity_out, worst_position, worst_velocity);
+  ASSERT_GT(before, 100) << "the case this guards: a reading some tens of ms into the run";
+  EXPECT_EQ(position_out, 0);
+}
 
 INSTANTIATE_TEST_SUITE_P(Seeds, PopulationWarmingRamp, ::testing::Values(72u, 76u),
                          [](const auto& info) { return "motor_" + std::to_string(info.param); });
