@@ -77,9 +77,6 @@ struct Options {
 constexpr Condition kConditions[] = {Condition::as_calibrated, Condition::ramp_plus_10k, Condition::step_minus_10k};
 constexpr int kConditionCount = 3;
 constexpr int kScenarioCount = 5;
-/// Noise seeds of one draw are 1000 + motor seed (runs) and 2000 + motor seed (fault
-/// probe); each further draw adds this, beyond any motor seed.
-constexpr std::uint64_t kNoiseDrawStride = 1000000;
 
 struct Cell {  // one motor, one ruler mode, one condition, one scenario
   bool ok = false;
@@ -193,8 +190,8 @@ MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning,
     for (int k = 0; k < kConditionCount; ++k) {
       if (!o.temperature && k > 0) continue;
       for (int s = 0; s < kScenarioCount; ++s) {
-        const auto r = bench::run_population_scenario(m.motor, c, scenarios[static_cast<std::size_t>(s)], kConditions[k],
-                                                      1000 + seed + kNoiseDrawStride * o.noise_draw);
+        const auto r = bench::run_population_scenario(m.motor, c, scenarios[static_cast<std::size_t>(s)],
+                                                      kConditions[k], bench::run_noise_seed(seed, o.noise_draw));
         Cell& cell = m.cell[ruler][k][s];
         cell.ok = r.ok;
         if (!r.ok) continue;
@@ -217,7 +214,7 @@ MotorResult evaluate_motor(std::uint64_t seed, const core::FilterConfig& tuning,
       probe.sensor = static_cast<int>(seed % static_cast<std::uint64_t>(m.motor.datasheet.hall.count));
       probe.at_s = 5.0;
       const auto r = bench::run_population_scenario(m.motor, c, scenarios[3], Condition::ramp_plus_10k,
-                                                    2000 + seed + kNoiseDrawStride * o.noise_draw, probe);
+                                                    bench::probe_noise_seed(seed, o.noise_draw), probe);
       m.detect_s[ruler] = r.probe_flagged_before ? -2.0 : r.detect_s;
     }
   }

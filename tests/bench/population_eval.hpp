@@ -102,6 +102,17 @@ inline std::vector<PopScenario> population_scenarios(double travel_m) {
 constexpr double kValidPositionAccuracyM = 5e-6;
 constexpr double kValidVelocityAccuracyMps = 1.7e-3;
 
+/// The population runs' sensor-noise seeds. Draw 0 is the committed tables': 1000 + the
+/// motor's seed for the scenario runs and 2000 + it for the fault probe; each further
+/// draw adds kNoiseDrawStride, beyond any motor seed.
+constexpr std::uint64_t kNoiseDrawStride = 1000000;
+constexpr std::uint64_t run_noise_seed(std::uint64_t motor_seed, std::uint64_t draw = 0) {
+  return 1000 + motor_seed + kNoiseDrawStride * draw;
+}
+constexpr std::uint64_t probe_noise_seed(std::uint64_t motor_seed, std::uint64_t draw = 0) {
+  return 2000 + motor_seed + kNoiseDrawStride * draw;
+}
+
 enum class Condition { as_calibrated, ramp_plus_10k, step_minus_10k };
 inline const char* condition_name(Condition c) {
   switch (c) {

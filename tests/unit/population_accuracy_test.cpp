@@ -42,7 +42,8 @@ TEST_P(PopulationMotor, WithARulerMeetsTheTargetsInEveryScenarioAndFlagsADeadSen
   ASSERT_TRUE(cal.ok) << cal.error;
   const auto scenarios = bench::population_scenarios(p.datasheet.travel_m);
   for (const auto& sc : scenarios) {
-    const auto r = bench::run_population_scenario(p, cal, sc, bench::Condition::as_calibrated, 1000 + GetParam());
+    const auto r =
+        bench::run_population_scenario(p, cal, sc, bench::Condition::as_calibrated, bench::run_noise_seed(GetParam()));
     ASSERT_TRUE(r.ok) << sc.name << ": " << r.error;
     std::printf("[ figures  ] %-15s position rms %.3f um (bias %+.3f, max %.3f) | velocity rms %.4f mm/s | "
                 "2-sigma %.1f %% / %.1f %% | VALID %.2f %% | largest error while VALID %.3f um\n",
@@ -64,8 +65,8 @@ TEST_P(PopulationMotor, WithARulerMeetsTheTargetsInEveryScenarioAndFlagsADeadSen
   probe.inject = true;
   probe.sensor = static_cast<int>(GetParam() % static_cast<std::uint64_t>(p.datasheet.hall.count));
   probe.at_s = 5.0;
-  const auto r = bench::run_population_scenario(p, cal, scenarios[3], bench::Condition::as_calibrated, 2000 + GetParam(),
-                                                probe);
+  const auto r = bench::run_population_scenario(p, cal, scenarios[3], bench::Condition::as_calibrated,
+                                                bench::probe_noise_seed(GetParam()), probe);
   ASSERT_TRUE(r.ok) << r.error;
   std::printf("[ figures  ] dead sensor %d flagged after %.1f ms\n", probe.sensor, r.detect_s * 1e3);
   EXPECT_FALSE(r.probe_flagged_before);
@@ -180,7 +181,7 @@ TEST_P(PopulationNoRulerCoilField, TheTablesErrorsAreNotTakenForTheCoil) {
   ASSERT_EQ(sc.name, "point-to-point");
   double worst = 0.0;
   const auto r = bench::run_population_scenario(
-      p, cal, sc, bench::Condition::as_calibrated, 1000 + GetParam(), {},
+      p, cal, sc, bench::Condition::as_calibrated, bench::run_noise_seed(GetParam()), {},
       [&](double t, const core::EncoderEstimate& e, const core::AxisPipeline&, const sim::SimSource& src) {
         if (t >= sc.t0_s) worst = std::max(worst, std::abs(e.position_m - (src.truth()->position_m - cal.zero_m)));
       });
@@ -405,8 +406,8 @@ TEST_P(PopulationStandstillPlaces, SigmaHoldsTheTablesOwnNoiseWhereverTheCarriag
     double err = 0.0, var = 0.0;
     int n = 0;
     const auto r = bench::run_population_scenario(
-        p, cal, sc, bench::Condition::as_calibrated, 1000 + GetParam() + static_cast<std::uint64_t>(k), {},
-        [&](double t, const core::EncoderEstimate& e, const core::AxisPipeline&, const sim::SimSource& src) {
+        p, cal, sc, bench::Condition::as_calibrated, bench::run_noise_seed(GetParam() + static_cast<std::uint64_t>(k)),
+        {}, [&](double t, const core::EncoderEstimate& e, const core::AxisPipeline&, const sim::SimSource& src) {
           if (t < sc.t0_s || t > sc.t1_s) return;
           err += e.position_m - (src.truth()->position_m - cal.zero_m);
           var += e.position_std_m * e.position_std_m;
@@ -522,7 +523,7 @@ class PopulationWarmStandstill : public StandstillWithARuler {};
 
 TEST_P(PopulationWarmStandstill, SigmaCoversTheDriftNoRedundancyCanSeeAndValidKeepsItsPromise) {
   for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
-    const auto r = bench::run_population_scenario(p, cal, standstill, cond, 1000 + GetParam());
+    const auto r = bench::run_population_scenario(p, cal, standstill, cond, bench::run_noise_seed(GetParam()));
     ASSERT_TRUE(r.ok) << r.error;
     std::printf("[ figures  ] %-11s position rms %.3f um | 2-sigma %.1f %% | VALID %.2f %% | largest error while "
                 "VALID %.3f um\n",
@@ -551,7 +552,7 @@ TEST_P(PopulationStandstillOneSensor, NoFixReadsTheTemperatureAndValidIsNotClaim
     int used = -1;
     bool checked = false;
     const auto r = bench::run_population_scenario(
-        p, cal, standstill, cond, 1000 + GetParam(), {},
+        p, cal, standstill, cond, bench::run_noise_seed(GetParam()), {},
         [&](double, const core::EncoderEstimate& e, const core::AxisPipeline& pipeline, const sim::SimSource&) {
           used = e.hall_sensors_used;
           checked = checked || pipeline.adaptation().temperature_checked();
@@ -587,7 +588,7 @@ TEST_P(PopulationWarmMotion, SensorsDriftedByTemperatureAreLearntTogetherInTenth
   for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
     for (std::size_t k = 1; k < scenarios.size(); ++k) {
       const auto& sc = scenarios[k];
-      const auto r = bench::run_population_scenario(p, cal, sc, cond, 1000 + GetParam());
+      const auto r = bench::run_population_scenario(p, cal, sc, cond, bench::run_noise_seed(GetParam()));
       ASSERT_TRUE(r.ok) << r.error;
       std::printf("[ figures  ] %-11s %-15s position rms %.3f um | velocity rms %.4f mm/s | 2-sigma %.1f %% / %.1f %% | "
                   "VALID %.2f %%\n",
@@ -628,7 +629,8 @@ TEST_P(PopulationWarmingRamp, EachSensorsOwnCoefficientIsFollowedAsTheMotorWarms
   ASSERT_TRUE(cal.ok) << cal.error;
   const auto sc = bench::population_scenarios(p.datasheet.travel_m)[3];  // multisine
   ASSERT_EQ(sc.name, "multisine");
-  const auto r = bench::run_population_scenario(p, cal, sc, bench::Condition::ramp_plus_10k, 1000 + GetParam());
+  const auto r =
+      bench::run_population_scenario(p, cal, sc, bench::Condition::ramp_plus_10k, bench::run_noise_seed(GetParam()));
   ASSERT_TRUE(r.ok) << r.error;
   std::printf("[ figures  ] +10 K ramp, multisine: position rms %.3f um | 2-sigma %.1f %% / %.1f %% | VALID %.2f %%\n",
               r.err.position_m.rms() * 1e6, 100 * r.err.position_coverage(), 100 * r.err.velocity_coverage(),
@@ -680,7 +682,7 @@ TEST(PopulationNoRulerFixNoiseHeldOut, TheTablesErrorFromPlaceToPlaceIsFixNoiseO
 }
 
 /// A held-out motor calibrated without a ruler and run through the multi-sine as
-/// calibrated, on the +10 K ramp and 10 K cold (noise seed 1000 + its seed).
+/// calibrated, on the +10 K ramp and 10 K cold (noise seed bench::run_noise_seed of its seed).
 struct NoRulerMultisine {
   sim::PopulationMotor motor;
   bench::CalibrationOutcome cal;
@@ -696,7 +698,8 @@ NoRulerMultisine no_ruler_multisine(std::uint64_t seed) {
   if (!m.cal.ok) return m;
   for (const auto cond :
        {bench::Condition::as_calibrated, bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k})
-    m.runs.emplace_back(cond, bench::run_population_scenario(m.motor, m.cal, m.scenario, cond, 1000 + seed));
+    m.runs.emplace_back(cond,
+                        bench::run_population_scenario(m.motor, m.cal, m.scenario, cond, bench::run_noise_seed(seed)));
   return m;
 }
 
@@ -824,7 +827,7 @@ TEST_P(PopulationWarmStartFromRest, SigmaHoldsWhatTheSensorsHaveNotLearntYet) {
   ASSERT_FALSE(p.sim.temperature.report);
   ASSERT_TRUE(cal.ok) << cal.error;
   for (const auto cond : kWarmConditions) {
-    const auto r = bench::run_population_scenario(p, cal, sc, cond, 1000 + GetParam());
+    const auto r = bench::run_population_scenario(p, cal, sc, cond, bench::run_noise_seed(GetParam()));
     ASSERT_TRUE(r.ok) << r.error;
     print_warm_start_figures(cond, sc, r);
     EXPECT_GE(r.err.position_coverage(), 0.9) << bench::condition_name(cond);
@@ -940,7 +943,7 @@ TEST_P(PopulationWarmStart, ValidWaitsForTheFixThatHoldsTheThermometersWidening)
     bool valid_at_reading = false;
     int after = -1;
     const auto r = bench::run_population_scenario(
-        p, cal, sc, bench::Condition::ramp_plus_10k, 1000 + GetParam(), {},
+        p, cal, sc, bench::Condition::ramp_plus_10k, bench::run_noise_seed(GetParam()), {},
         [&](double t, const core::EncoderEstimate& e, const core::AxisPipeline& pipeline, const sim::SimSource&) {
           // The filter's own sigma: the published one also holds, until the reading, what
           // a temperature not read yet may have done (PopulationWarmStartHeldOut below).
@@ -984,7 +987,7 @@ TEST(PopulationWarmStartHeldOut, SigmaHoldsTheUnreadTemperatureWhileMovingOnMoto
   int before = 0, position_out = 0, velocity_out = 0;
   double worst_position = 0.0, worst_velocity = 0.0;  // |error| / sigma
   const auto r = bench::run_population_scenario(
-      w.motor, w.cal, w.scenario, bench::Condition::step_minus_10k, 1000 + 60 + 1000000, {},
+      w.motor, w.cal, w.scenario, bench::Condition::step_minus_10k, bench::run_noise_seed(60, 1), {},
       [&](double, const core::EncoderEstimate& e, const core::AxisPipeline& pipeline, const sim::SimSource& source) {
         const auto* truth = source.truth();
         if (!truth || pipeline.adaptation().temperature_checked() || !pipeline.initialised()) return;

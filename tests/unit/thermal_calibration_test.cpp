@@ -64,13 +64,14 @@ TEST_P(ThermalCalibrationPopulation, AWarmOrColdMotorAtStandstillFollowsItsSenso
   // What the temperature adds to the error as calibrated (motor 8's 10-bit converter
   // alone leaves 0.85 um where it stands), in quadrature.
   const auto cold = bench::run_population_scenario(p, c.thermal, standstill, bench::Condition::as_calibrated,
-                                                   1000 + GetParam());
+                                                   bench::run_noise_seed(GetParam()));
   ASSERT_TRUE(cold.ok) << cold.error;
   const double base = cold.err.position_m.rms();
   const auto added = [base](double rms) { return std::sqrt(std::max(0.0, rms * rms - base * base)); };
   for (const auto cond : {bench::Condition::ramp_plus_10k, bench::Condition::step_minus_10k}) {
-    const auto before = bench::run_population_scenario(p, c.plain, standstill, cond, 1000 + GetParam());
-    const auto after = bench::run_population_scenario(p, c.thermal, standstill, cond, 1000 + GetParam());
+    const auto before = bench::run_population_scenario(p, c.plain, standstill, cond, bench::run_noise_seed(GetParam()));
+    const auto after =
+        bench::run_population_scenario(p, c.thermal, standstill, cond, bench::run_noise_seed(GetParam()));
     ASSERT_TRUE(before.ok && after.ok) << before.error << after.error;
     std::printf("[ figures  ] %-11s as calibrated %.3f um | without coefficients %.3f um VALID %.1f %% | with them "
                 "%.3f um VALID %.2f %% 2-sigma %.1f %% largest error while VALID %.3f um\n",
@@ -103,7 +104,7 @@ TEST(ThermalCalibrationPopulationMoving, TheVelocitySigmaHoldsTheSensorsLearning
     const Calibrated c = calibrate(p, true);
     ASSERT_TRUE(c.thermal.ok) << c.error;
     const auto sc = bench::population_scenarios(p.datasheet.travel_m).at(static_cast<std::size_t>(scenario));
-    const auto r = bench::run_population_scenario(p, c.thermal, sc, cond, 1000 + seed);
+    const auto r = bench::run_population_scenario(p, c.thermal, sc, cond, bench::run_noise_seed(seed));
     ASSERT_TRUE(r.ok) << r.error;
     std::printf("[ figures  ] motor %llu %-8s %-11s velocity %.4f mm/s RMS, 2-sigma %.1f %%; position %.3f um, "
                 "2-sigma %.1f %%; VALID %.1f %%\n",
@@ -133,12 +134,11 @@ TEST(ThermalCalibrationPopulationNoRuler, APoorReadingOfTheRiseMovesTheSensorsOn
     ASSERT_TRUE(c.thermal.ok) << c.error;
     const auto standstill = bench::population_scenarios(p.datasheet.travel_m).at(0);
     int used = 0;
-    const auto plain = bench::run_population_scenario(p, c.plain, standstill, cond, 1000 + seed);
-    const auto after = bench::run_population_scenario(
-        p, c.thermal, standstill, cond, 1000 + seed, {},
-        [&](double, const core::EncoderEstimate& e, const core::AxisPipeline&, const sim::SimSource&) {
-          used = e.hall_sensors_used;
-        });
+    const auto plain = bench::run_population_scenario(p, c.plain, standstill, cond, bench::run_noise_seed(seed));
+    const auto after =
+        bench::run_population_scenario(p, c.thermal, standstill, cond, bench::run_noise_seed(seed), {},
+                                       [&](double, const core::EncoderEstimate& e, const core::AxisPipeline&,
+                                           const sim::SimSource&) { used = e.hall_sensors_used; });
     ASSERT_TRUE(plain.ok && after.ok) << plain.error << after.error;
     std::printf("[ figures  ] motor %llu %-13s sensors used %d | without coefficients %.3f um VALID %.1f %% | with "
                 "them %.3f um VALID %.1f %% 2-sigma %.1f %% largest error while VALID %.3f um\n",
