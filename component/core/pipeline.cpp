@@ -580,20 +580,23 @@ const EncoderEstimate& AxisPipeline::step(const RawSample& sample) {
       std::sqrt(kf_.position_variance() + disagreement_var_m2_ + quantisation_var_m2_ + table_var_m2_ + drift_var_m2_ +
                 unread_var_m2_ + coil_var_m2_ + scale_m * scale_m + beyond_m * beyond_m);
   const double scale_mps = cfg_.sensors.track_scale_std * out_.velocity_mps;
-  // The disagreement is a position error too (in the published sigma above), and it
-  // repeats with the magnet period like the drift's: crossed at this speed it is a
-  // velocity error at the pattern rate, which the filter passes as far as it
-  // follows its fixes (first order, over the time it averages them). Without it a
-  // motor 10 K off its calibration temperature had a velocity sigma of 0.03 mm/s
-  // against 0.1-0.3 mm/s of error while the sensors' learning settled after a start
-  // (motor 8 of the population at 1 m/s: 35 % of the velocity within 2 sigma).
+  // Position errors that repeat with the magnet period: crossed at this speed they are
+  // velocity errors at the pattern rate, which the filter passes as far as it follows
+  // its fixes (first order, over the time it averages them).
   const double wt = pattern_rate_ * averaged_s_;
-  const double disagreement_velocity_var = disagreement_var_m2_ * pattern_rate_ * pattern_rate_ / (1.0 + wt * wt);
+  const auto at_pattern_rate = [&](double position_var_m2) {
+    return position_var_m2 * pattern_rate_ * pattern_rate_ / (1.0 + wt * wt);
+  };
+  // The disagreement (in the published sigma above). Without it a motor 10 K off its
+  // calibration temperature had a velocity sigma of 0.03 mm/s against 0.1-0.3 mm/s of
+  // error while the sensors' learning settled after a start (motor 8 of the population
+  // at 1 m/s: 35 % of the velocity within 2 sigma).
+  const double disagreement_velocity_var = at_pattern_rate(disagreement_var_m2_);
   // The coil field's error likewise: the fix's sensitivity to it changes along the
   // magnet period, and with the acceleration.
-  const double coil_velocity_var = coil_var_m2_ * pattern_rate_ * pattern_rate_ / (1.0 + wt * wt) + coil_jerk_var_;
-  // The same for the drift a temperature not read yet may have put in the fixes.
-  const double unread_velocity_var = unread_var_m2_ * pattern_rate_ * pattern_rate_ / (1.0 + wt * wt);
+  const double coil_velocity_var = at_pattern_rate(coil_var_m2_) + coil_jerk_var_;
+  // The drift a temperature not read yet may have put in the fixes.
+  const double unread_velocity_var = at_pattern_rate(unread_var_m2_);
   out_.velocity_std_mps = std::sqrt(kf_.velocity_variance() + drift_velocity_var_ + disagreement_velocity_var +
                                     coil_velocity_var + unread_velocity_var + scale_mps * scale_mps);
   out_.acceleration_std_mps2 = std::sqrt(p(FusionFilter::kAcc, FusionFilter::kAcc));
