@@ -322,7 +322,8 @@ struct Recorder {
 };
 
 /// Kinds of publisher/subscriber pair:
-///  "product":         StateWriter (5 ms offered) -> StateReader (10 ms requested, as `monitor`);
+///  "product":         StateWriter (5 ms offered) -> StateReader (10 ms requested, as `monitor`,
+///                     checked by the reader's own thread);
 ///  "product-to-bare": StateWriter (5 ms offered) -> the bare reader on the product's topic: the
 ///                     same subscriber as "bare", so the two differ only in the writer;
 ///  "product-nodl":    StateWriter -> StateReader, no deadline on either side (diagnostic);
@@ -1249,8 +1250,9 @@ int orchestrator_main(const Options& opt, const std::string& command) {
         "reader's listener right after take) minus the sample's `publish_time_ns`, stamped just before `write()`.\n"
         "The first "
      << warmup << " samples of each round are not counted.\n"
-        "Product = DdsContext + StateWriter (per-axis writer, 5 ms offered deadline) -> StateReader (10 ms requested\n"
-        "deadline), built-in state QoS (best effort, keep last, preallocated history). Bare = a DomainParticipant\n"
+        "Product = DdsContext + StateWriter (one axis, 5 ms offered deadline, with its pacing instance) -> StateReader\n"
+        "(10 ms requested deadline, checked by the reader's own thread: no deadline or liveliness asked of Fast DDS),\n"
+        "built-in state QoS (best effort, keep last, preallocated history). Bare = a DomainParticipant\n"
         "and DataWriter/DataReader with default QoS made best effort, same type and topic layout, no product code.\n"
         "Every kind runs once per round, in turn ("
      << opt.rounds << " x " << opt.round_s
@@ -1270,13 +1272,16 @@ int orchestrator_main(const Options& opt, const std::string& command) {
   md << lat_row("product writer (5 ms offered) -> bare reader, UDP loopback", WU)
      << ratio_row("**ratio product writer / bare writer, same bare reader, UDP loopback**", WU, BU, true) << "\n";
   md << "The diagnostic row is the product's StateWriter/StateReader with no deadline offered or requested,\n"
-        "everything else identical: it shows what the deadline QoS costs (Fast DDS 2.9 re-arms the writer's\n"
-        "deadline timer on every write, which wakes its event thread once per sample, and a reader that requests a\n"
-        "deadline does the same for every sample it receives, before it hands the sample over).\n\n"
+        "everything else identical: it shows what the deadline costs. Fast DDS 2.9 re-arms a writer's deadline\n"
+        "timer at a write of the instance whose deadline comes first, a wake-up of its event thread; the\n"
+        "StateWriter's pacing instance (registered, never written) comes first, so that happens about once per\n"
+        "deadline period instead of once per sample. The StateReader checks the requested deadline in its own\n"
+        "thread, every half period, instead of asking Fast DDS (whose reader re-arms its timer on every sample it\n"
+        "receives, before it hands the sample over). docs/dds-interface.md, \"What an offered deadline costs\".\n\n"
         "The last two pairs give the product's writer and the bare writer the same subscriber, the bare reader\n"
         "(no deadline requested: one that requested one would not match the bare writer, which offers none), so\n"
         "they differ only in what publishes. The first pairs have the product's own StateReader at the other end,\n"
-        "requesting 10 ms as `monitor` does: that adds what a reader's requested deadline costs in Fast DDS 2.9.\n\n";
+        "requesting 10 ms as `monitor` does.\n\n";
   md << "Per round (p50 / p99 / max [us]):\n\n";
   for (int r = 0; r < opt.rounds; ++r) {
     md << fmt("- round %d:", r + 1);
