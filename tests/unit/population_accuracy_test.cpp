@@ -405,8 +405,9 @@ TEST_P(PopulationStandstillPlaces, SigmaHoldsTheTablesOwnNoiseWhereverTheCarriag
     sc.t1_s = 0.3;
     double err = 0.0, var = 0.0;
     int n = 0;
+    // This motor's noise seed, moved by the place: each place its own draw of the noise.
     const auto r = bench::run_population_scenario(
-        p, cal, sc, bench::Condition::as_calibrated, bench::run_noise_seed(GetParam() + static_cast<std::uint64_t>(k)),
+        p, cal, sc, bench::Condition::as_calibrated, bench::run_noise_seed(GetParam()) + static_cast<std::uint64_t>(k),
         {}, [&](double t, const core::EncoderEstimate& e, const core::AxisPipeline&, const sim::SimSource& src) {
           if (t < sc.t0_s || t > sc.t1_s) return;
           err += e.position_m - (src.truth()->position_m - cal.zero_m);
@@ -682,7 +683,7 @@ TEST(PopulationNoRulerFixNoiseHeldOut, TheTablesErrorFromPlaceToPlaceIsFixNoiseO
 }
 
 /// A held-out motor calibrated without a ruler and run through the multi-sine as
-/// calibrated, on the +10 K ramp and 10 K cold (noise seed bench::run_noise_seed of its seed).
+/// calibrated, on the +10 K ramp and 10 K cold (noise seed: bench::run_noise_seed of its seed).
 struct NoRulerMultisine {
   sim::PopulationMotor motor;
   bench::CalibrationOutcome cal;
